@@ -1,0 +1,57 @@
+"""The typed contract of every fixstream stream (pydantic v2 models) and its JSON Schema export."""
+
+from .acoustic import AcousticArrival, Beacon, BeaconRange, BeaconTable, NavPacket
+from .base import MODELS, Covariance, Header, Message, StrictModel, Vec2, Vec3
+from .diagnostics import Diagnostic
+from .navigation import (
+    Attitude,
+    BaroAltitude,
+    Current,
+    Depth,
+    Heading,
+    InsSample,
+    NavReset,
+    RadioAltimeter,
+    SoundSpeed,
+    SpeedLog,
+)
+from .outputs import Fix, Hypothesis, Track
+from .radar import BistaticConfigUpdate, BistaticPlot, BistaticScan, RadarPlot, RadarSite, TrackEnd
+from .truth import ScenarioMarker, Truth
+
+__all__ = [
+    "MODELS",
+    "AcousticArrival",
+    "Attitude",
+    "BaroAltitude",
+    "Beacon",
+    "BeaconRange",
+    "BeaconTable",
+    "BistaticConfigUpdate",
+    "BistaticPlot",
+    "BistaticScan",
+    "Covariance",
+    "Current",
+    "Depth",
+    "Diagnostic",
+    "Fix",
+    "Header",
+    "Heading",
+    "Hypothesis",
+    "InsSample",
+    "Message",
+    "NavPacket",
+    "NavReset",
+    "RadarPlot",
+    "RadarSite",
+    "RadioAltimeter",
+    "ScenarioMarker",
+    "SoundSpeed",
+    "SpeedLog",
+    "StrictModel",
+    "Track",
+    "TrackEnd",
+    "Truth",
+    "Vec2",
+    "Vec3",
+]

@@ -1,0 +1,88 @@
+"""Base message type, the common header and reusable field types.
+
+Every stream in fixstream is a pydantic v2 model deriving from :class:`Message`. Models are strict
+(no silent type coercion), frozen, reject unknown fields and reject NaN/inf in every float field.
+Units are carried in field names (``_m``, ``_s``, ``_rad``, ``_deg``, ``_mps``) or descriptions.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, ClassVar
+
+import numpy as np
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field
+
+#: registry of every concrete message model by schema name (filled by ``Message.__init_subclass__``)
+MODELS: dict[str, type[Message]] = {}
+
+
+class StrictModel(BaseModel):
+    """Strict, frozen, closed pydantic model: the base of every payload and sub-record."""
+
+    model_config = ConfigDict(strict=True, extra="forbid", allow_inf_nan=False, frozen=True)
+
+
+class Header(StrictModel):
+    """Common header of every message (architecture rule 3)."""
+
+    stamp_ns: int = Field(ge=0, description="time of validity of the data, ns on the scenario clock")
+    frame_id: str = Field(default="", max_length=128, description="frame of the spatial quantities")
+    source: str = Field(default="", max_length=256, description="publisher that produced the message")
+    seq: int = Field(default=0, ge=0, description="per-publisher sequence number, for loss counting")
+
+    @property
+    def stamp_s(self) -> float:
+        return self.stamp_ns * 1e-9
+
+
+class Message(StrictModel):
+    """A top-level stream payload. Concrete subclasses register themselves in :data:`MODELS`."""
+
+    schema_version: ClassVar[int] = 1
+    header: Header
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if not cls.__name__.startswith("_"):
+            MODELS[cls.__name__] = cls
+
+    @classmethod
+    def schema_id(cls) -> str:
+        """Schema name and version as carried on the wire, e.g. ``fixstream.BeaconRange/1``."""
+        return f"fixstream.{cls.__name__}/{cls.schema_version}"
+
+    @property
+    def stamp_ns(self) -> int:
+        return self.header.stamp_ns
+
+
+def _check_vec(n: int) -> Any:
+    def check(v: list[float]) -> list[float]:
+        if len(v) != n:
+            raise ValueError(f"expected {n} components, got {len(v)}")
+        return v
+
+    return AfterValidator(check)
+
+
+Vec2 = Annotated[list[float], _check_vec(2)]
+Vec3 = Annotated[list[float], _check_vec(3)]
+
+
+def _check_covariance(m: list[list[float]]) -> list[list[float]]:
+    """Square, symmetric and positive semi-definite (to a relative tolerance)."""
+    n = len(m)
+    if n == 0 or any(len(row) != n for row in m):
+        raise ValueError("covariance must be a non-empty square matrix")
+    a = np.asarray(m, dtype=float)
+    scale = max(float(np.max(np.abs(a))), 1e-300)
+    if not np.allclose(a, a.T, rtol=1e-9, atol=1e-9 * scale):
+        raise ValueError("covariance is not symmetric")
+    if float(np.min(np.linalg.eigvalsh(a))) < -1e-9 * scale:
+        raise ValueError("covariance is not positive semi-definite")
+    return m
+
+
+Covariance = Annotated[list[list[float]], AfterValidator(_check_covariance)]
+
+Sigma = Annotated[float, Field(gt=0.0, description="one-sigma standard deviation, > 0")]

@@ -1,0 +1,1 @@
+"""fixstream runtime: configuration, Zenoh sessions, the wire codec, the service base, the stack runner."""

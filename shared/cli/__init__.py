@@ -1,0 +1,1 @@
+"""The ``fixstream`` command line: one module per sub-command, imported lazily."""

@@ -1,0 +1,52 @@
+"""``fixstream`` entry point. Each sub-command lives in ``shared/cli/<name>.py`` with
+``add_arguments(parser)`` and ``run(args) -> int``; heavy imports happen inside ``run``."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import os
+import sys
+
+#: sub-command -> (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "router": ("shared.cli.router", "run a Zenoh router (the embedded default for local stacks)"),
+    "run": ("shared.cli.run", "run a service by name (recorder, lbl_nav, ...)"),
+    "play": ("shared.cli.play", "play a scenario YAML or replay an MCAP recording onto Zenoh"),
+    "record": ("shared.cli.record", "record Zenoh streams to MCAP"),
+    "echo": ("shared.cli.echo", "print decoded messages on a key expression"),
+    "status": ("shared.cli.status", "query every service's status"),
+    "scenarios": ("shared.cli.scenarios", "list, show and validate scenario files"),
+    "mc": ("shared.cli.mc", "Monte-Carlo runs of a scenario in-process, metrics to JSON"),
+    "up": ("shared.cli.up", "run the compose.yaml stack as local processes"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="fixstream", description="fixstream navigation and tracking stack")
+    parser.add_argument("--log-level", default=os.environ.get("FIXSTREAM_LOG_LEVEL", "INFO"))
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, (module_name, help_text) in COMMANDS.items():
+        module = importlib.import_module(module_name)
+        p = sub.add_parser(name, help=help_text, description=(module.__doc__ or help_text).strip())
+        module.add_arguments(p)
+        p.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=getattr(logging, str(args.log_level).upper(), logging.INFO),
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    try:
+        return int(args._run(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

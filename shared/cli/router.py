@@ -1,0 +1,36 @@
+"""``fixstream router``: a router-mode Zenoh session that runs until SIGTERM/SIGINT."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import threading
+
+from ..session import open_session
+from ..settings import ZenohSettings
+
+log = logging.getLogger("fixstream.router")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--listen", action="append", help="endpoint, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    parser.add_argument("--connect", action="append", default=[], help="other routers to mesh with")
+
+
+def run(args: argparse.Namespace) -> int:
+    env = ZenohSettings()
+    listen = args.listen or env.listen or ["tcp/127.0.0.1:7447"]
+    settings = ZenohSettings(mode="router", listen=listen, connect=args.connect, multicast_scouting=False)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    session = open_session(settings)
+    log.info("router %s listening on %s", session.zid(), ", ".join(listen))
+    print(f"router listening on {' '.join(listen)}", flush=True)
+    try:
+        stop.wait()
+    finally:
+        session.close()
+    log.info("router stopped")
+    return 0

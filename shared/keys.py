@@ -1,0 +1,74 @@
+"""The key-expression tree of fixstream (architecture rule 4), built in one place.
+
+fixstream/sensor/<platform>/<kind>/<sensor_id>
+fixstream/truth/<platform>
+fixstream/fix/<estimator>/<platform>
+fixstream/track/<tracker>/<track_id>
+fixstream/diag/<service>/<instance>
+fixstream/status/<service>/<instance>      (queryable)
+fixstream/alive/<service>/<instance>       (liveliness)
+fixstream/scenario/<name>                  (player start/end markers)
+"""
+
+from __future__ import annotations
+
+import re
+
+ROOT = "fixstream"
+_CHUNK = re.compile(r"^[A-Za-z0-9_.\-]+$")
+
+
+def chunk(value: str) -> str:
+    """Validate one key chunk: no '/', no wildcards, no '$', not empty."""
+    if not _CHUNK.match(value):
+        raise ValueError(f"invalid key chunk {value!r}: use letters, digits, '_', '-', '.'")
+    return value
+
+
+def _key(*parts: str) -> str:
+    return "/".join([ROOT, *(chunk(p) for p in parts)])
+
+
+def sensor(platform: str, kind: str, sensor_id: str) -> str:
+    return _key("sensor", platform, kind, sensor_id)
+
+
+def truth(platform: str) -> str:
+    return _key("truth", platform)
+
+
+def fix(estimator: str, platform: str) -> str:
+    return _key("fix", estimator, platform)
+
+
+def track(tracker: str, *track_path: str) -> str:
+    return _key("track", tracker, *track_path)
+
+
+def diag(service: str, instance: str) -> str:
+    return _key("diag", service, instance)
+
+
+def status(service: str, instance: str) -> str:
+    return _key("status", service, instance)
+
+
+def alive(service: str, instance: str) -> str:
+    return _key("alive", service, instance)
+
+
+def scenario(name: str) -> str:
+    return _key("scenario", name)
+
+
+ALL = f"{ROOT}/**"
+ALIVE_ALL = f"{ROOT}/alive/**"
+STATUS_ALL = f"{ROOT}/status/**"
+
+
+def parse_alive(key: str) -> tuple[str, str]:
+    """``fixstream/alive/<service>/<instance>`` -> (service, instance)."""
+    parts = key.split("/")
+    if len(parts) != 4 or parts[0] != ROOT or parts[1] != "alive":
+        raise ValueError(f"not a liveliness key: {key!r}")
+    return parts[2], parts[3]

@@ -1,0 +1,18 @@
+"""Find services by name: ``services/<name>/service.py`` exposes ``build() -> Service``."""
+
+from __future__ import annotations
+
+import importlib
+
+from .service import Service
+
+
+def load_service(name: str) -> Service:
+    try:
+        module = importlib.import_module(f"services.{name}.service")
+    except ModuleNotFoundError as exc:
+        if exc.name and exc.name.startswith(f"services.{name}"):
+            raise SystemExit(f"fixstream: no service named {name!r} (looked for services/{name}/service.py)") from None
+        raise
+    service: Service = module.build()
+    return service

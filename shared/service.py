@@ -1,0 +1,345 @@
+"""The service base every fixstream process builds on.
+
+A :class:`Service` subscribes to key expressions, decodes and validates each sample, dispatches it to a
+handler (which calls a pure core), and publishes what the handler returns. Around that it
+
+* reports every rejected payload on ``fixstream/diag/<service>/<instance>`` (key, reason, running counts),
+* declares a liveliness token ``fixstream/alive/<service>/<instance>``,
+* answers the queryable ``fixstream/status/<service>/<instance>`` (counters, last error, config),
+* stamps ``header.source`` and a per-key ``header.seq`` on everything it publishes,
+* shuts down cleanly on SIGTERM/SIGINT.
+
+Samples are queued by Zenoh's callback threads and processed by one thread in arrival order, so a
+service is deterministic for a given input order (architecture rule 1).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import queue
+import signal
+import threading
+import time
+import traceback
+from collections import Counter
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from types import FrameType
+from typing import Any, ClassVar
+
+import zenoh
+
+from schemas import Diagnostic, Header, Message, ScenarioMarker
+
+from . import codec, keys
+from .session import open_session
+from .settings import ServiceSettings, ZenohSettings
+
+log = logging.getLogger("fixstream.service")
+
+
+class InputRejected(ValueError):
+    """Raised by a handler or core for an input it refuses; the service reports it and carries on."""
+
+    def __init__(self, reason: str, detail: str = "") -> None:
+        super().__init__(f"{reason}: {detail}" if detail else reason)
+        self.reason = reason
+        self.detail = detail
+
+
+@dataclass(frozen=True)
+class Output:
+    """A message to publish on a key."""
+
+    key: str
+    msg: Message
+
+
+Handler = Callable[[str, Message], Iterable[Output] | None]
+RawHandler = Callable[[str, bytes, str], Iterable[Output] | None]
+
+
+@dataclass
+class Subscription:
+    """What a service listens to: a key expression, the accepted models and the handler."""
+
+    key_expr: str
+    handler: Handler | None = None
+    accepts: tuple[type[Message], ...] = ()
+    monotonic: bool = False
+    raw_handler: RawHandler | None = None
+
+
+@dataclass
+class Counters:
+    received: int = 0
+    accepted: int = 0
+    rejected: int = 0
+    published: int = 0
+    rejected_by_reason: Counter[str] = field(default_factory=Counter)
+    last_error: str | None = None
+    last_error_key: str | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "received": self.received,
+            "accepted": self.accepted,
+            "rejected": self.rejected,
+            "published": self.published,
+            "rejected_by_reason": dict(self.rejected_by_reason),
+            "last_error": self.last_error,
+            "last_error_key": self.last_error_key,
+        }
+
+
+class _DiagLimiter:
+    """Token bucket per reason so a flood of bad input cannot flood the diag key (counts are kept)."""
+
+    def __init__(self, rate_hz: float, burst: int) -> None:
+        self.rate_hz = rate_hz
+        self.burst = float(burst)
+        self._tokens: dict[str, float] = {}
+        self._last: dict[str, float] = {}
+
+    def allow(self, reason: str, now: float) -> bool:
+        tokens = self._tokens.get(reason, self.burst)
+        tokens = min(self.burst, tokens + (now - self._last.get(reason, now)) * self.rate_hz)
+        self._last[reason] = now
+        allowed = tokens >= 1.0
+        self._tokens[reason] = tokens - 1.0 if allowed else tokens
+        return allowed
+
+
+_STOP = object()
+
+
+class Service:
+    """Base class of every fixstream process that subscribes and publishes."""
+
+    name: ClassVar[str] = "service"
+    #: diagnostics per reason per second once the burst is spent (0: no limit)
+    diag_rate_hz: ClassVar[float] = 50.0
+    diag_burst: ClassVar[int] = 2000
+
+    def __init__(self, settings: ServiceSettings, zenoh_settings: ZenohSettings | None = None) -> None:
+        self.settings = settings
+        self.zenoh_settings = zenoh_settings or ZenohSettings()
+        self.instance = keys.chunk(settings.instance)
+        self.source = f"{self.name}/{self.instance}"
+        self.counters = Counters()
+        self.session: zenoh.Session | None = None
+        self._queue: queue.Queue[Any] = queue.Queue(maxsize=settings.queue_size)
+        self._stop = threading.Event()
+        self._seq: dict[str, int] = {}
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._last_stamp: dict[str, int] = {}
+        self._limiter = _DiagLimiter(self.diag_rate_hz, self.diag_burst)
+        self.diag_suppressed = 0
+        self._declared: list[Any] = []
+        self._subs: list[Subscription] = []
+        self.started_at = time.time()
+
+    # ----- to override ------------------------------------------------------------------------
+    def subscriptions(self) -> list[Subscription]:
+        """The key expressions this service listens to."""
+        return []
+
+    def on_scenario_end(self, marker: ScenarioMarker) -> Iterable[Output]:
+        """Called when the player's end marker arrives: flush buffered state."""
+        return ()
+
+    def on_idle(self) -> Iterable[Output]:
+        """Housekeeping on the wall clock (never estimation): called at least every 0.2 s."""
+        return ()
+
+    def on_stop(self) -> None:
+        """Release resources (files, ...) before the session closes."""
+
+    def status_extra(self) -> dict[str, Any]:
+        """Service-specific figures for the status queryable."""
+        return {}
+
+    # ----- public API --------------------------------------------------------------------------
+    def status(self) -> dict[str, Any]:
+        return {
+            "service": self.name,
+            "instance": self.instance,
+            "uptime_s": round(time.time() - self.started_at, 3),
+            "queue_depth": self._queue.qsize(),
+            "counters": self.counters.as_dict(),
+            "diag_suppressed": self.diag_suppressed,
+            "config": self.settings.model_dump(mode="json"),
+            **self.status_extra(),
+        }
+
+    def stop(self) -> None:
+        self._stop.set()
+        with contextlib.suppress(queue.Full):
+            self._queue.put_nowait(_STOP)
+
+    def install_signal_handlers(self) -> None:
+        def handler(signum: int, frame: FrameType | None) -> None:
+            log.info("%s: signal %d, stopping", self.source, signum)
+            self.stop()
+
+        signal.signal(signal.SIGTERM, handler)
+        signal.signal(signal.SIGINT, handler)
+
+    def run(self) -> int:
+        """Open the session, serve until stopped, close cleanly. Returns a process exit code."""
+        self.session = open_session(self.zenoh_settings)
+        try:
+            self._declare()
+            self._loop()
+        finally:
+            self._shutdown()
+        return 0
+
+    def publish(self, key: str, msg: Message) -> None:
+        """Stamp source and per-key seq, encode and put."""
+        assert self.session is not None
+        seq = self._seq.get(key, 0)
+        self._seq[key] = seq + 1
+        header = msg.header.model_copy(update={"source": self.source, "seq": seq})
+        stamped = msg.model_copy(update={"header": header})
+        pub = self._publishers.get(key)
+        if pub is None:
+            pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+            self._publishers[key] = pub
+        pub.put(codec.encode(stamped), encoding=zenoh.Encoding(codec.encoding_of(type(msg))))
+        self.counters.published += 1
+
+    def reject(self, key: str, reason: str, detail: str = "", stamp_ns: int = 0) -> None:
+        """Count a rejected input and report it on the diag key (rate-limited per reason)."""
+        c = self.counters
+        c.rejected += 1
+        c.rejected_by_reason[reason] += 1
+        c.last_error = f"{reason}: {detail}" if detail else reason
+        c.last_error_key = key
+        log.debug("%s rejected %s on %s: %s", self.source, reason, key, detail)
+        if self.session is None:
+            return
+        if self.diag_rate_hz > 0 and not self._limiter.allow(reason, time.monotonic()):
+            self.diag_suppressed += 1
+            return
+        diag = Diagnostic(
+            header=Header(stamp_ns=stamp_ns),
+            service=self.name,
+            instance=self.instance,
+            key=key,
+            reason=reason,
+            detail=detail[:4000],
+            count=c.rejected_by_reason[reason],
+            counts=dict(c.rejected_by_reason),
+        )
+        self.publish(keys.diag(self.name, self.instance), diag)
+
+    def process(self, key: str, payload: bytes, encoding: str) -> None:
+        """Decode, validate and dispatch one sample (also callable without Zenoh, for tests)."""
+        self.counters.received += 1
+        sub = self._match(key)
+        try:
+            if sub is not None and sub.raw_handler is not None:
+                outputs = sub.raw_handler(key, payload, encoding)
+            else:
+                msg = codec.decode(payload, encoding)
+                if isinstance(msg, ScenarioMarker):
+                    outputs = self.on_scenario_end(msg) if msg.event == "end" else ()
+                else:
+                    if sub is None or sub.handler is None:
+                        raise InputRejected("no_handler", f"nothing handles {key}")
+                    if sub.accepts and not isinstance(msg, sub.accepts):
+                        allowed = ", ".join(m.__name__ for m in sub.accepts)
+                        raise InputRejected("unexpected_type", f"{type(msg).__name__} on {key}; expects {allowed}")
+                    if sub.monotonic:
+                        self._check_monotonic(key, msg)
+                    outputs = sub.handler(key, msg)
+        except codec.DecodeError as exc:
+            self.reject(key, exc.reason, exc.detail)
+            return
+        except InputRejected as exc:
+            self.reject(key, exc.reason, exc.detail)
+            return
+        except Exception as exc:  # a bug must not kill the service; it is reported like bad input
+            log.error("%s: handler failed on %s:\n%s", self.source, key, traceback.format_exc())
+            self.reject(key, "internal_error", f"{type(exc).__name__}: {exc}")
+            return
+        self.counters.accepted += 1
+        for out in outputs or ():
+            self.publish(out.key, out.msg)
+
+    # ----- internals ---------------------------------------------------------------------------
+    def _check_monotonic(self, key: str, msg: Message) -> None:
+        last = self._last_stamp.get(key)
+        if last is not None and msg.header.stamp_ns < last:
+            raise InputRejected("stamp_backwards", f"stamp {msg.header.stamp_ns} ns < last {last} ns on {key}")
+        self._last_stamp[key] = msg.header.stamp_ns
+
+    def _match(self, key: str) -> Subscription | None:
+        ke = zenoh.KeyExpr(key)
+        for sub in self._subs:
+            if zenoh.KeyExpr(sub.key_expr).intersects(ke):
+                return sub
+        return None
+
+    def _enqueue(self, sample: zenoh.Sample) -> None:
+        item = (str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding))
+        self._queue.put(item)
+
+    def _declare(self) -> None:
+        assert self.session is not None
+        self._subs = self.subscriptions()
+        scenario_keys = f"{keys.ROOT}/scenario/**"
+        keyexprs = [s.key_expr for s in self._subs]
+        if not any(zenoh.KeyExpr(k).intersects(zenoh.KeyExpr(scenario_keys)) for k in keyexprs):
+            keyexprs.append(scenario_keys)
+        for ke in keyexprs:
+            self._declared.append(self.session.declare_subscriber(ke, self._enqueue))
+        self._declared.append(
+            self.session.declare_queryable(keys.status(self.name, self.instance), self._answer_status)
+        )
+        self._declared.append(self.session.liveliness().declare_token(keys.alive(self.name, self.instance)))
+        log.info("%s: up, listening on %s", self.source, ", ".join(keyexprs))
+
+    def _answer_status(self, query: zenoh.Query) -> None:
+        body = json.dumps(self.status(), default=str).encode()
+        query.reply(query.key_expr, body, encoding=zenoh.Encoding.APPLICATION_JSON)
+
+    def _loop(self) -> None:
+        next_idle = time.monotonic() + 0.2
+        while not self._stop.is_set():
+            try:
+                item = self._queue.get(timeout=0.1)
+            except queue.Empty:
+                item = None
+            if item is _STOP:
+                break
+            if item is not None:
+                self.process(*item)
+            now = time.monotonic()
+            if now >= next_idle:
+                next_idle = now + 0.2
+                self._idle()
+
+    def _idle(self) -> None:
+        try:
+            for out in self.on_idle():
+                self.publish(out.key, out.msg)
+        except Exception:
+            log.error("%s: on_idle failed:\n%s", self.source, traceback.format_exc())
+
+    def _shutdown(self) -> None:
+        try:
+            self.on_stop()
+        finally:
+            for d in reversed(self._declared):
+                with contextlib.suppress(Exception):  # already gone with the session
+                    d.undeclare()
+            for pub in self._publishers.values():
+                with contextlib.suppress(Exception):
+                    pub.undeclare()
+            if self.session is not None:
+                self.session.close()
+            log.info("%s: stopped", self.source)

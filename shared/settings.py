@@ -1,0 +1,71 @@
+"""Configuration from environment variables (and an optional YAML/JSON file), validated by pydantic.
+
+Every process reads :class:`ZenohSettings` (prefix ``FIXSTREAM_ZENOH_``) and its own settings class
+derived from :class:`ServiceSettings` (prefix ``FIXSTREAM_``). Lists are given as JSON or as
+comma-separated strings: ``FIXSTREAM_ZENOH_CONNECT=tcp/127.0.0.1:7447,tcp/10.0.0.2:7447``.
+A file named by ``FIXSTREAM_CONFIG_FILE`` supplies defaults that environment variables override.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import yaml
+from pydantic import BeforeValidator, Field
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+
+def _split_list(value: Any) -> Any:
+    if isinstance(value, str):
+        text = value.strip()
+        if not text:
+            return []
+        if text.startswith("["):
+            return json.loads(text)
+        return [part.strip() for part in text.split(",") if part.strip()]
+    return value
+
+
+StrList = Annotated[list[str], NoDecode, BeforeValidator(_split_list)]
+
+
+class ZenohSettings(BaseSettings):
+    """How a process joins the Zenoh network."""
+
+    model_config = SettingsConfigDict(env_prefix="FIXSTREAM_ZENOH_", extra="ignore")
+
+    mode: Literal["client", "peer", "router"] = "client"
+    connect: StrList = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    listen: StrList = Field(default_factory=list)
+    multicast_scouting: bool = False
+    config_file: Path | None = Field(default=None, description="a zenoh JSON5 config used as the base")
+
+
+def _file_defaults() -> dict[str, Any]:
+    path = os.environ.get("FIXSTREAM_CONFIG_FILE")
+    if not path:
+        return {}
+    data = yaml.safe_load(Path(path).read_text())
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a mapping at the top level")
+    return data
+
+
+class ServiceSettings(BaseSettings):
+    """Settings every service has. Subclasses add their own fields (same ``FIXSTREAM_`` prefix)."""
+
+    model_config = SettingsConfigDict(env_prefix="FIXSTREAM_", extra="ignore")
+
+    instance: str = Field(default="default", description="instance name, the last chunk of its keys")
+    queue_size: int = Field(default=100_000, ge=1, description="inbound samples held before back-pressure")
+
+    @classmethod
+    def load(cls, **overrides: Any) -> ServiceSettings:
+        """File defaults < environment < explicit overrides."""
+        file_data = {k: v for k, v in _file_defaults().items() if k in cls.model_fields}
+        env_view = cls()  # environment (and defaults)
+        merged = {**file_data, **env_view.model_dump(exclude_unset=True), **overrides}
+        return cls(**merged)
