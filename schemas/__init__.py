@@ -19,6 +19,19 @@ from .outputs import Fix, Hypothesis, Track
 from .radar import BistaticConfigUpdate, BistaticPlot, BistaticScan, RadarPlot, RadarSite, TrackEnd
 from .truth import ScenarioMarker, Truth
 
+
+def _import_all_schema_modules() -> None:
+    """Import every module of this package so each model registers in MODELS (estimators add files)."""
+    import importlib
+    import pkgutil
+
+    for info in pkgutil.iter_modules(__path__):
+        if info.name not in {"export"}:
+            importlib.import_module(f"{__name__}.{info.name}")
+
+
+_import_all_schema_modules()
+
 __all__ = [
     "MODELS",
     "AcousticArrival",

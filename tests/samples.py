@@ -145,6 +145,15 @@ EXAMPLES: dict[str, Message] = {
 
 
 def all_examples() -> dict[str, Message]:
+    """EXAMPLES here plus ``EXAMPLES`` of every ``tests/samples_<topic>.py`` (one per estimator)."""
+    import importlib
+    import pkgutil
+    from pathlib import Path
+
+    merged = dict(EXAMPLES)
+    for info in pkgutil.iter_modules([str(Path(__file__).parent)]):
+        if info.name.startswith("samples_"):
+            merged.update(importlib.import_module(info.name).EXAMPLES)
     missing = set(MODELS) - set(EXAMPLES)
-    assert not missing, f"tests/samples.py has no example for {sorted(missing)}"
-    return EXAMPLES
+    assert not missing, f"tests/samples*.py have no example for {sorted(missing)}"
+    return merged
