@@ -1,0 +1,1 @@
+"""Benchmarks that print figures (a table and JSON); run with `make bench`."""

@@ -1,0 +1,1 @@
+"""fixstream services: one package per process (pure core + thin Zenoh adapter)."""
