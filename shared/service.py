@@ -27,7 +27,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from types import FrameType
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Literal
 
 import zenoh
 
@@ -140,6 +140,7 @@ class Service:
         self._declared: list[Any] = []
         self._subs: list[Subscription] = []
         self.started_at = time.time()
+        self.rx_time_ns = 0
 
     # ----- to override ------------------------------------------------------------------------
     def subscriptions(self) -> list[Subscription]:
@@ -219,6 +220,20 @@ class Service:
         c.last_error = f"{reason}: {detail}" if detail else reason
         c.last_error_key = key
         log.debug("%s rejected %s on %s: %s", self.source, reason, key, detail)
+        self.report(key, reason, detail, count=c.rejected_by_reason[reason], counts=dict(c.rejected_by_reason))
+
+    def report(
+        self,
+        key: str,
+        reason: str,
+        detail: str = "",
+        *,
+        count: int,
+        counts: dict[str, int],
+        level: Literal["info", "warning", "error"] = "warning",
+        stamp_ns: int = 0,
+    ) -> None:
+        """Publish a Diagnostic (rate-limited per reason; counts are never lost, only messages)."""
         if self.session is None:
             return
         if self.diag_rate_hz > 0 and not self._limiter.allow(reason, time.monotonic()):
@@ -228,16 +243,22 @@ class Service:
             header=Header(stamp_ns=stamp_ns),
             service=self.name,
             instance=self.instance,
+            level=level,
             key=key,
             reason=reason,
             detail=detail[:4000],
-            count=c.rejected_by_reason[reason],
-            counts=dict(c.rejected_by_reason),
+            count=count,
+            counts=counts,
         )
         self.publish(keys.diag(self.name, self.instance), diag)
 
-    def process(self, key: str, payload: bytes, encoding: str) -> None:
-        """Decode, validate and dispatch one sample (also callable without Zenoh, for tests)."""
+    def process(self, key: str, payload: bytes, encoding: str, rx_time_ns: int | None = None) -> None:
+        """Decode, validate and dispatch one sample (also callable without Zenoh, for tests).
+
+        ``rx_time_ns`` is the wall time the sample arrived (for logs and recordings, never estimation);
+        handlers read it as ``self.rx_time_ns``.
+        """
+        self.rx_time_ns = rx_time_ns if rx_time_ns is not None else time.time_ns()
         self.counters.received += 1
         sub = self._match(key)
         try:
@@ -285,7 +306,7 @@ class Service:
         return None
 
     def _enqueue(self, sample: zenoh.Sample) -> None:
-        item = (str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding))
+        item = (str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding), time.time_ns())
         self._queue.put(item)
 
     def _declare(self) -> None:
@@ -330,11 +351,28 @@ class Service:
         except Exception:
             log.error("%s: on_idle failed:\n%s", self.source, traceback.format_exc())
 
+    def _drain(self) -> None:
+        """Process what was queued before the stop, so a SIGTERM does not drop received samples."""
+        while True:
+            try:
+                item = self._queue.get_nowait()
+            except queue.Empty:
+                return
+            if item is not _STOP:
+                self.process(*item)
+
     def _shutdown(self) -> None:
+        subscribers = [d for d in self._declared if isinstance(d, zenoh.Subscriber)]
+        for d in subscribers:  # stop the inflow first, then finish what already arrived
+            with contextlib.suppress(Exception):
+                d.undeclare()
         try:
+            self._drain()
             self.on_stop()
         finally:
             for d in reversed(self._declared):
+                if d in subscribers:
+                    continue
                 with contextlib.suppress(Exception):  # already gone with the session
                     d.undeclare()
             for pub in self._publishers.values():

@@ -1,0 +1,317 @@
+"""The recorder end to end: a real router, a real recorder process, a real Zenoh client, real MCAP files."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+from collections import Counter
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import msgpack
+import pytest
+import zenoh
+from conftest import REPO, fixstream_cmd, service_env, wait_until
+from mcap.reader import make_reader
+from samples import EXAMPLES, available_examples
+
+from schemas import Diagnostic, Message
+from shared import codec, keys
+from shared.mcap_io import MAGIC, Record, decode_record, iter_records, recording_files
+from shared.session import open_session
+from shared.settings import ZenohSettings
+
+pytestmark = pytest.mark.e2e
+
+
+def examples() -> dict[str, Message]:
+    """One example of every model that has one (completeness is the contract test's business)."""
+    return available_examples()
+
+
+def restamp(msg: Message, seq: int, source: str) -> Message:
+    header = msg.header.model_copy(update={"seq": seq, "source": source, "stamp_ns": 1_000_000 + seq})
+    return msg.model_copy(update={"header": header})
+
+
+@dataclass
+class Recorder:
+    """A recorder subprocess and a Zenoh client session talking to it."""
+
+    proc: subprocess.Popen[bytes]
+    session: zenoh.Session
+    instance: str
+    out_dir: Path
+    log_path: Path
+    publishers: dict[str, zenoh.Publisher] = field(default_factory=dict)
+
+    def status(self) -> dict[str, Any]:
+        replies = list(self.session.get(keys.status("recorder", self.instance), timeout=2.0))
+        for reply in replies:
+            if reply.ok is not None:
+                body: dict[str, Any] = json.loads(reply.ok.payload.to_bytes())
+                return body
+        return {}
+
+    def alive(self) -> bool:
+        replies = self.session.liveliness().get(keys.alive("recorder", self.instance), timeout=2.0)
+        return any(r.ok is not None for r in replies)
+
+    def publisher(self, key: str) -> zenoh.Publisher:
+        """A reliable, blocking publisher that the recorder's subscriber already matches."""
+        pub = self.publishers.get(key)
+        if pub is None:
+            pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+            assert wait_until(lambda: pub.matching_status.matching, timeout=10), f"recorder does not match {key}"
+            self.publishers[key] = pub
+        return pub
+
+    def send(self, key: str, msg: Message) -> None:
+        self.publisher(key).put(codec.encode(msg), encoding=zenoh.Encoding(codec.encoding_of(type(msg))))
+
+    def send_raw(self, key: str, payload: bytes, encoding: str) -> None:
+        self.publisher(key).put(payload, encoding=zenoh.Encoding(encoding))
+
+    def wait_status(self, predicate: Any, timeout: float = 20.0) -> dict[str, Any]:
+        last: dict[str, Any] = {}
+
+        def check() -> bool:
+            nonlocal last
+            last = self.status()
+            return bool(last) and bool(predicate(last))
+
+        assert wait_until(check, timeout=timeout, interval=0.1), f"status never matched; last: {last}\n{self.log()}"
+        return last
+
+    def terminate(self) -> None:
+        self.proc.send_signal(signal.SIGTERM)
+        rc = self.proc.wait(timeout=20)
+        assert rc == 0, f"recorder exited {rc}\n{self.log()}"
+
+    def log(self) -> str:
+        return self.log_path.read_text(errors="replace")[-4000:]
+
+
+@contextmanager
+def recorder(
+    router: str, tmp_path: Path, instance: str = "t1", cli: list[str] | None = None, **env: str
+) -> Iterator[Recorder]:
+    """Start ``fixstream run recorder`` (or ``fixstream record <cli>``) and wait until it is alive."""
+    out_dir = tmp_path / "out"
+    log_path = tmp_path / f"recorder-{instance}.log"
+    settings = {"FIXSTREAM_RECORDER_INSTANCE": instance, "FIXSTREAM_RECORDER_OUT_DIR": str(out_dir), **env}
+    cmd = fixstream_cmd("record", *cli) if cli is not None else fixstream_cmd("run", "recorder")
+    with log_path.open("wb") as log_file:
+        proc = subprocess.Popen(cmd, cwd=REPO, env=service_env(router, **settings), stdout=log_file, stderr=log_file)
+    session = open_session(ZenohSettings(mode="client", connect=[router]))
+    rec = Recorder(proc=proc, session=session, instance=instance, out_dir=out_dir, log_path=log_path)
+    try:
+        assert wait_until(lambda: proc.poll() is not None or rec.alive(), timeout=30), rec.log()
+        assert proc.poll() is None, f"recorder died at start\n{rec.log()}"
+        yield rec
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=10)
+        for pub in rec.publishers.values():
+            pub.undeclare()
+        session.close()
+
+
+def records_of(paths: list[Path]) -> list[Record]:
+    return [r for p in paths for r in iter_records(p)]
+
+
+def by_topic(records: list[Record]) -> dict[str, list[Message]]:
+    out: dict[str, list[Message]] = {}
+    for r in records:
+        out.setdefault(r.topic, []).append(decode_record(r))
+    return out
+
+
+# ----- recording, both compressions, both launchers ---------------------------------------------------
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4"])
+def test_records_every_message_exactly(router: str, tmp_path: Path, compression: str) -> None:
+    """zstd through ``fixstream run recorder`` + env; lz4 through ``fixstream record`` whose arguments
+    override an environment that names another directory, another compression and a dead endpoint."""
+    rounds = 4
+    decoy = tmp_path / "env_out"
+    cli, env = None, {"FIXSTREAM_RECORDER_COMPRESSION": compression}
+    if compression == "lz4":
+        cli = ["--compression", "lz4", "--out-dir", str(tmp_path / "out"), "--connect", router]
+        env = {
+            "FIXSTREAM_RECORDER_COMPRESSION": "zstd",
+            "FIXSTREAM_RECORDER_OUT_DIR": str(decoy),
+            "FIXSTREAM_ZENOH_CONNECT": "tcp/127.0.0.1:9",
+        }
+    sent: dict[str, list[Message]] = {}
+    with recorder(router, tmp_path, cli=cli, **env) as rec:
+        for i in range(rounds):
+            for name, example in examples().items():
+                key = f"fixstream/test/{name.lower()}"
+                msg = restamp(example, i, f"test/{name}")
+                rec.send(key, msg)
+                sent.setdefault(key, []).append(msg)
+        total = sum(len(v) for v in sent.values())
+        status = rec.wait_status(lambda s: s["written"] >= total)
+        assert status["written"] == total
+        assert (status["lost"], status["counters"]["rejected"]) == (0, 0)
+        assert status["current_file"] is not None
+        rec.terminate()
+
+    files = recording_files(rec.out_dir)
+    assert len(files) == 1 and Path(status["current_file"]) == files[0]
+    assert not decoy.exists()
+    records = records_of(files)
+    got = by_topic(records)
+    assert {k: len(v) for k, v in got.items()} == {k: len(v) for k, v in sent.items()}
+    assert got == sent
+    for r in records:
+        assert (r.schema_encoding, r.message_encoding) == ("jsonschema", "json")
+        assert r.schema_name == f"fixstream.{type(sent[r.topic][0]).__name__}"
+        assert r.publish_time_ns == decode_record(r).header.stamp_ns
+    with files[0].open("rb") as f:  # finalised: the official reader finds summary, statistics and footer
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics is not None
+    assert summary.statistics.message_count == len(records)
+    assert {c.compression for c in summary.chunk_indexes} == {compression}
+    assert files[0].read_bytes().endswith(MAGIC)
+
+
+def test_rotation_by_size_keeps_every_message_once(router: str, tmp_path: Path) -> None:
+    env = {
+        "FIXSTREAM_RECORDER_CHUNK_SIZE_BYTES": "2048",
+        "FIXSTREAM_RECORDER_ROTATE_SIZE_MB": "0.006",
+        "FIXSTREAM_RECORDER_KEY_EXPR": "fixstream/truth/**",
+    }
+    n = 300
+    with recorder(router, tmp_path, **env) as rec:
+        sent = [restamp(EXAMPLES["Truth"], i, "test/truth") for i in range(n)]
+        for msg in sent:
+            rec.send("fixstream/truth/auv1", msg)
+        rec.wait_status(lambda s: s["written"] >= n)
+        rec.terminate()
+    files = recording_files(rec.out_dir)
+    assert len(files) >= 3, files
+    for path in files:
+        assert path.read_bytes().endswith(MAGIC), f"{path} not finalised"
+        assert path.stat().st_size < 6000 + 2048 + 4000  # limit + one chunk + summary and footer
+    got = [decode_record(r) for r in records_of(files)]
+    assert got == sent
+
+
+def test_sigkill_leaves_a_readable_file(router: str, tmp_path: Path) -> None:
+    env = {"FIXSTREAM_RECORDER_CHUNK_FLUSH_S": "0.3", "FIXSTREAM_RECORDER_KEY_EXPR": "fixstream/sensor/**"}
+    key = "fixstream/sensor/auv1/depth/d0"
+    first = [restamp(EXAMPLES["Depth"], i, "test/depth") for i in range(50)]
+    with recorder(router, tmp_path, **env) as rec:
+        for msg in first:
+            rec.send(key, msg)
+        status = rec.wait_status(lambda s: s["written"] >= len(first) and s["current_file"])
+        path = Path(status["current_file"])
+        # the chunk holding the first batch is closed after chunk_flush_s and reaches the file
+        assert wait_until(lambda: sum(1 for _ in iter_records(path)) >= len(first), timeout=10)
+        second = [restamp(EXAMPLES["Depth"], 50 + i, "test/depth") for i in range(20)]
+        for msg in second:
+            rec.send(key, msg)
+        rec.proc.kill()
+        assert rec.proc.wait(timeout=10) == -signal.SIGKILL
+    data = path.read_bytes()
+    assert not data.endswith(MAGIC)  # really not finalised
+    got = [decode_record(r) for r in iter_records(path)]
+    assert len(got) >= len(first)
+    assert got == (first + second)[: len(got)]
+
+
+def test_seq_gaps_and_resets_are_reported(router: str, tmp_path: Path) -> None:
+    diags: list[Diagnostic] = []
+    with recorder(router, tmp_path, instance="gaps") as rec:
+        sub = rec.session.declare_subscriber(
+            keys.diag("recorder", "gaps"),
+            lambda s: diags.append(codec.decode(s.payload.to_bytes(), str(s.encoding))),  # type: ignore[arg-type]
+        )
+        key = "fixstream/sensor/auv1/depth/d1"
+        for seq in (0, 1, 2, 5):
+            rec.send(key, restamp(EXAMPLES["Depth"], seq, "test/gappy"))
+        assert wait_until(lambda: any(d.reason == "seq_gap" for d in diags), timeout=10), rec.log()
+        gap = next(d for d in diags if d.reason == "seq_gap")
+        assert gap.key == key and "2 lost" in gap.detail and "test/gappy" in gap.detail
+        status = rec.wait_status(lambda s: s["written"] >= 4)
+        assert (status["lost"], status["seq_gaps"], status["seq_resets"]) == (2, 1, 0)
+        rec.send(key, restamp(EXAMPLES["Depth"], 0, "test/gappy"))  # the publisher restarted
+        assert wait_until(lambda: any(d.reason == "seq_reset" for d in diags), timeout=10)
+        status = rec.wait_status(lambda s: s["seq_resets"] == 1)
+        assert status["lost"] == 2 and status["counters"]["rejected"] == 0
+        sub.undeclare()
+        rec.terminate()
+    topics = Counter(r.topic for r in records_of(recording_files(rec.out_dir)))
+    assert topics[key] == 5  # gaps and resets are reported, the messages are still recorded
+    assert topics[keys.diag("recorder", "gaps")] >= 2  # its own diagnostics are on fixstream/** too
+
+
+# ----- faults ---------------------------------------------------------------------------------------
+
+_DEPTH_ENCODING = "application/msgpack;fixstream.Depth/1"
+
+
+def _malformed(i: int) -> tuple[bytes, str, str]:
+    """The i-th bad payload, its encoding and the reason the recorder must give, derived here by hand."""
+    good = EXAMPLES["Depth"].model_dump(mode="python")
+    kind = i % 7
+    if kind == 0:  # a msgpack map cut short: the unpacker runs out of input
+        packed = msgpack.packb(good)
+        return packed[: 1 + i % (len(packed) - 1)], _DEPTH_ENCODING, "bad_msgpack"
+    if kind == 1:  # NaN in a float field
+        return msgpack.packb({**good, "depth_m": float("nan")}), _DEPTH_ENCODING, "non_finite"
+    if kind == 2:  # a string where a float (or an int) belongs
+        bad = {**good, "depth_m": "35.5"} if i % 2 else {**good, "header": {**good["header"], "seq": "7"}}
+        return msgpack.packb(bad), _DEPTH_ENCODING, "wrong_type"
+    if kind == 3:
+        return msgpack.packb({k: v for k, v in good.items() if k != "depth_m"}), _DEPTH_ENCODING, "missing_field"
+    if kind == 4:
+        return msgpack.packb({**good, "depth_ft": 116.5}), _DEPTH_ENCODING, "extra_field"
+    if kind == 5:
+        return msgpack.packb(good), "application/msgpack;fixstream.NoSuchModel/1", "unknown_schema"
+    # 0xc1 is the one byte the msgpack spec never uses: whatever follows, it cannot be unpacked
+    return b"\xc1" + os.urandom(1 + i % 40), _DEPTH_ENCODING, "bad_msgpack"
+
+
+def test_malformed_flood_is_counted_reported_and_survived(router: str, tmp_path: Path) -> None:
+    n_bad, every = 1000, 10
+    diags: list[Diagnostic] = []
+    env = {"FIXSTREAM_RECORDER_KEY_EXPR": "fixstream/sensor/**"}
+    good_key, bad_key = "fixstream/sensor/auv1/depth/good", "fixstream/sensor/auv1/depth/bad"
+    with recorder(router, tmp_path, instance="faults", **env) as rec:
+        sub = rec.session.declare_subscriber(
+            keys.diag("recorder", "faults"),
+            lambda s: diags.append(codec.decode(s.payload.to_bytes(), str(s.encoding))),  # type: ignore[arg-type]
+        )
+        expected: Counter[str] = Counter()
+        good: list[Message] = []
+        for i in range(n_bad):
+            payload, encoding, reason = _malformed(i)
+            rec.send_raw(bad_key, payload, encoding)
+            expected[reason] += 1
+            if i % every == 0:
+                msg = restamp(EXAMPLES["Depth"], len(good), "test/good")
+                rec.send(good_key, msg)
+                good.append(msg)
+        status = rec.wait_status(lambda s: s["counters"]["rejected"] >= n_bad and s["written"] >= len(good))
+        assert rec.proc.poll() is None and rec.alive()
+        assert status["counters"]["rejected_by_reason"] == dict(expected)
+        assert status["counters"]["rejected"] == n_bad
+        assert (status["written"], status["lost"]) == (len(good), 0)
+        assert wait_until(lambda: set(expected) <= {d.reason for d in diags}, timeout=10)
+        assert all(d.key == bad_key and d.service == "recorder" for d in diags)
+        sub.undeclare()
+        rec.terminate()
+    records = records_of(recording_files(rec.out_dir))
+    assert {r.topic for r in records} == {good_key}
+    assert [decode_record(r) for r in records] == good
