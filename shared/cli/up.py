@@ -1,0 +1,73 @@
+"""``fixstream up``: run the compose.yaml stack as local processes.
+
+Reads the compose file (default: compose.yaml here or in a parent directory), interpolates variables
+as compose does (the process environment over ``.env``), replaces the ``eclipse/zenoh`` router with an
+embedded ``fixstream router`` on a free loopback port, and starts every other service's command
+locally in depends_on order. Output lines are prefixed with the service name. When the driver service
+(label ``fixstream.role: driver``, the player) exits, or on Ctrl-C, the others are stopped with
+SIGTERM in reverse order; the MCAP files written to the recordings directory are listed at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+#: interpolation variable that compose.yaml uses for the host side of the recordings volume
+RECORDINGS_VAR = "FIXSTREAM_RECORDINGS"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("services", nargs="*", metavar="SERVICE", help="only these (and their dependencies)")
+    parser.add_argument("-f", "--file", type=Path, help="compose file (default: compose.yaml, searched upwards)")
+    parser.add_argument("--env-file", type=Path, help="variables for interpolation (default: .env beside the file)")
+    parser.add_argument(
+        "-t", "--timeout", type=float, help="seconds each service gets to stop before SIGKILL (default: 10)"
+    )
+    parser.add_argument("--ready-timeout", type=float, default=60.0, help="seconds to wait for a dependency")
+    parser.add_argument(
+        "--recordings", type=Path, help=f"host directory for recordings (sets ${RECORDINGS_VAR}; default ./recordings)"
+    )
+    parser.add_argument("--drain", type=float, default=1.0, help="seconds between the driver's end and the stop")
+    parser.add_argument("--profile", action="append", default=[], help="enable services of this compose profile")
+    parser.add_argument("--dry-run", action="store_true", help="print the local commands and exit")
+    parser.add_argument("--no-color", action="store_true", help="no colours in the service prefixes")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..stack import ComposeError, Supervisor, find_compose_file, load_compose, plan_stack
+    from ..stack.console import Console
+
+    console = Console(color=False if args.no_color else None)
+    overrides: dict[str, str] = {}
+    if args.recordings is not None:
+        overrides[RECORDINGS_VAR] = str(args.recordings.expanduser().resolve())
+    profiles = [*args.profile, *filter(None, os.environ.get("COMPOSE_PROFILES", "").split(","))]
+    try:
+        path = args.file or find_compose_file(Path.cwd())
+        project = load_compose(path, env_file=args.env_file, overrides=overrides)
+        for warning in project.warnings:
+            console.event(f"warning: {warning}")
+        names = project.select(args.services, profiles)
+        plan = plan_stack(project, names, stop_timeout=args.timeout, create_dirs=not args.dry_run)
+    except (ComposeError, OSError) as exc:
+        console.event(f"error: {exc}")
+        return 2
+    console.event(f"{project.path}: {', '.join(names)}")
+    if args.dry_run:
+        for proc in plan.processes:
+            changed = {k: v for k, v in proc.env.items() if os.environ.get(k) != v}
+            console.event(f"{proc.service}: cd {proc.cwd} && {' '.join(proc.argv)}")
+            for key, value in sorted(changed.items()):
+                console.event(f"{proc.service}:   {key}={value}")
+        return 0
+    result = Supervisor(plan, console, ready_timeout=args.ready_timeout, drain=args.drain).run()
+    for rec in result.recordings:
+        console.event(f"recording: {rec} ({rec.stat().st_size} bytes)")
+    if not result.recordings and plan.output_dirs:
+        console.event(f"no new MCAP file in {', '.join(str(d) for d in plan.output_dirs)}")
+    for failure in result.failures:
+        console.event(f"failed: {failure}")
+    console.event(f"done, exit code {result.exit_code}")
+    return result.exit_code

@@ -1,0 +1,250 @@
+"""Turn a compose project into local processes: the same commands, an embedded router, loopback endpoints.
+
+* A service whose image is ``eclipse/zenoh[:tag]`` becomes ``fixstream router --listen
+  tcp/127.0.0.1:<free port>`` (its ``--connect`` endpoints to other routers are rewritten too).
+* Every other service runs its ``entrypoint + command`` locally: ``fixstream`` is this interpreter's
+  ``python -m shared.cli.main`` and ``python``/``python3`` is this interpreter.
+* Endpoints ``<proto>/<router host>:<container port>`` in environment values and arguments become the
+  loopback router, and ``FIXSTREAM_ZENOH_CONNECT`` defaults to it.
+* Container paths under a bind volume's target become the host path (created if missing); named and
+  anonymous volumes become temporary directories.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import sys
+import tempfile
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..session import free_tcp_port
+from .compose import ALIVE_LABEL, ComposeError, ComposeProject, ServiceSpec, Volume
+from .interpolate import parse_env_file
+
+FIXSTREAM_ARGV = [sys.executable, "-m", "shared.cli.main"]
+PYTHON_NAMES = {"python", "python3", f"python{sys.version_info.major}.{sys.version_info.minor}"}
+DEFAULT_ROUTER_PORT = 7447
+DEFAULT_STOP_TIMEOUT = 10.0
+_ENDPOINT = re.compile(r"^(?P<proto>[a-z0-9]+)/(?P<host>\[[^\]]*\]|[^:/]+):(?P<port>\d+)")
+
+
+@dataclass
+class ProcessSpec:
+    """One local process standing in for one compose service."""
+
+    service: str
+    argv: list[str]
+    env: dict[str, str]
+    cwd: Path
+    depends_on: dict[str, str] = field(default_factory=dict)
+    driver: bool = False
+    router_port: int | None = None
+    #: liveliness key expression that means "ready" (None: ready once started)
+    ready_key: str | None = None
+    stop_signal: int = signal.SIGTERM
+    stop_timeout: float = 10.0
+
+
+@dataclass
+class StackPlan:
+    project: ComposeProject
+    processes: list[ProcessSpec]
+    #: the loopback endpoint of the first embedded router (what the runner itself connects to)
+    endpoint: str | None
+    #: host directories of writable mounts (where recordings land)
+    output_dirs: list[Path]
+    temp_dirs: list[Path]
+
+
+def _listen_ports(argv: list[str]) -> list[int]:
+    ports: list[int] = []
+    for i, arg in enumerate(argv):
+        value = None
+        if arg in ("-l", "--listen") and i + 1 < len(argv):
+            value = argv[i + 1]
+        elif arg.startswith("--listen="):
+            value = arg.split("=", 1)[1]
+        if value:
+            m = _ENDPOINT.match(value)
+            if m:
+                ports.append(int(m.group("port")))
+    return ports or [DEFAULT_ROUTER_PORT]
+
+
+def _connects(argv: list[str]) -> list[str]:
+    out: list[str] = []
+    for i, arg in enumerate(argv):
+        if arg in ("-e", "--connect") and i + 1 < len(argv):
+            out.append(argv[i + 1])
+        elif arg.startswith("--connect="):
+            out.append(arg.split("=", 1)[1])
+    return out
+
+
+class _Rewriter:
+    """Rewrites router endpoints to loopback and container paths to host paths in one string."""
+
+    def __init__(self, endpoints: Mapping[tuple[str, int], int], mounts: list[tuple[str, str]]) -> None:
+        self.endpoints = endpoints
+        self.mounts = sorted(mounts, key=lambda m: len(m[0]), reverse=True)
+
+    def endpoint(self, value: str) -> str:
+        def sub(m: re.Match[str]) -> str:
+            local = self.endpoints.get((m.group("host"), int(m.group("port"))))
+            return m.group(0) if local is None else f"tcp/127.0.0.1:{local}"
+
+        pattern = r"(?P<proto>[a-z0-9]+)/(?P<host>[A-Za-z0-9_.\-]+):(?P<port>\d+)"
+        return re.sub(pattern, sub, value)
+
+    def path(self, value: str) -> str:
+        for target, host in self.mounts:
+            if value == target:
+                return host
+            if value.startswith(target + "/"):
+                return host + value[len(target) :]
+        return value
+
+    def __call__(self, value: str) -> str:
+        value = self.endpoint(value)
+        key, sep, rest = value.partition("=")
+        if sep and not key.startswith("/") and rest.startswith("/"):
+            return key + sep + self.path(rest)
+        return self.path(value)
+
+
+def _mount_dirs(
+    spec: ServiceSpec, named: dict[str, Path], temp_dirs: list[Path], create: bool
+) -> list[tuple[str, str]]:
+    mounts: list[tuple[str, str]] = []
+    for vol in spec.volumes:
+        if vol.kind == "bind":
+            host = Path(vol.source)
+            if create and not host.exists():
+                host.mkdir(parents=True, exist_ok=True)
+        else:
+            key = vol.source or f"{spec.name}:{vol.target}"
+            if key not in named:
+                prefix = f"fixstream-{re.sub(r'[^A-Za-z0-9_.-]', '_', key)}-"
+                named[key] = Path(tempfile.mkdtemp(prefix=prefix)) if create else Path(tempfile.gettempdir(), prefix)
+                if create:
+                    temp_dirs.append(named[key])
+            host = named[key]
+        mounts.append((vol.target, str(host)))
+    return mounts
+
+
+def _ready_key(spec: ServiceSpec, argv: list[str], env: Mapping[str, str]) -> str | None:
+    if ALIVE_LABEL in spec.labels:
+        return spec.labels[ALIVE_LABEL] or None
+    args = argv[len(FIXSTREAM_ARGV) :] if argv[: len(FIXSTREAM_ARGV)] == FIXSTREAM_ARGV else []
+    if "run" in args and args.index("run") + 1 < len(args):
+        name = args[args.index("run") + 1]
+        instance = env.get(f"FIXSTREAM_{name.upper()}_INSTANCE") or env.get("FIXSTREAM_INSTANCE") or "*"
+        return f"fixstream/alive/{name}/{instance}"
+    return None
+
+
+def _signal(name: str | None) -> int:
+    if not name:
+        return signal.SIGTERM
+    text = name.upper()
+    try:
+        return int(signal.Signals[text if text.startswith("SIG") else "SIG" + text])
+    except KeyError:
+        raise ComposeError(f"unknown stop_signal {name!r}") from None
+
+
+def _stop_timeout(spec: ServiceSpec, override: float | None) -> float:
+    if override is not None:
+        return override
+    return spec.stop_grace_period if spec.stop_grace_period is not None else DEFAULT_STOP_TIMEOUT
+
+
+def _local_argv(argv: list[str]) -> list[str]:
+    if not argv:
+        return argv
+    if argv[0] == "fixstream":
+        return [*FIXSTREAM_ARGV, *argv[1:]]
+    if argv[0] in PYTHON_NAMES:
+        return [sys.executable, *argv[1:]]
+    return argv
+
+
+def plan_stack(
+    project: ComposeProject,
+    services: list[str],
+    stop_timeout: float | None = None,
+    environ: Mapping[str, str] | None = None,
+    create_dirs: bool = True,
+) -> StackPlan:
+    """Local processes for ``services`` (already in start order, e.g. from ``project.select``).
+
+    ``stop_timeout`` overrides every service's ``stop_grace_period`` (default 10 s, as compose).
+    ``create_dirs``: create missing bind sources and temporary directories for named volumes."""
+    base_env = dict(os.environ if environ is None else environ)
+    specs = [project.services[name] for name in services]
+    endpoints: dict[tuple[str, int], int] = {}
+    router_ports: dict[str, int] = {}
+    for spec in specs:
+        if spec.is_zenoh_router:
+            router_ports[spec.name] = free_tcp_port()
+            for port in _listen_ports(spec.command):
+                for host in spec.hostnames:
+                    endpoints[(host, port)] = router_ports[spec.name]
+    endpoint = f"tcp/127.0.0.1:{next(iter(router_ports.values()))}" if router_ports else None
+
+    named: dict[str, Path] = {}
+    temp_dirs: list[Path] = []
+    output_dirs: list[Path] = []
+    processes: list[ProcessSpec] = []
+    for spec in specs:
+        mounts = _mount_dirs(spec, named, temp_dirs, create_dirs)
+        output_dirs += [Path(h) for (t, h), v in zip(mounts, spec.volumes, strict=True) if not v.read_only]
+        rewrite = _Rewriter(endpoints, mounts)
+        env = {k: v for k, v in base_env.items() if not (endpoint and k.startswith("FIXSTREAM_ZENOH_"))}
+        env["PYTHONUNBUFFERED"] = "1"
+        if endpoint and not spec.is_zenoh_router:
+            env.update({"FIXSTREAM_ZENOH_MODE": "client", "FIXSTREAM_ZENOH_CONNECT": endpoint})
+        for path in spec.env_files:
+            if not path.is_file():
+                raise ComposeError(f"service {spec.name}: env_file not found: {path}")
+            env.update({k: rewrite(v) for k, v in parse_env_file(path, project.variables).items()})
+        for key, value in spec.environment.items():
+            if value is not None:
+                env[key] = rewrite(value)
+            elif key in base_env:
+                env[key] = base_env[key]
+        if spec.is_zenoh_router:
+            port = router_ports[spec.name]
+            argv = [*FIXSTREAM_ARGV, "router", "--listen", f"tcp/127.0.0.1:{port}"]
+            for peer in _connects(spec.command):
+                argv += ["--connect", rewrite.endpoint(peer)]
+        else:
+            argv = _local_argv([rewrite(a) for a in [*(spec.entrypoint or []), *spec.command]])
+            if not argv:
+                raise ComposeError(f"service {spec.name}: no command (the local runner needs one)")
+        cwd = Path(rewrite.path(spec.working_dir)) if spec.working_dir else project.directory
+        if not cwd.is_dir():
+            cwd = project.directory
+        processes.append(
+            ProcessSpec(
+                service=spec.name,
+                argv=argv,
+                env=env,
+                cwd=cwd,
+                depends_on=dict(spec.depends_on),
+                driver=spec.is_driver,
+                router_port=router_ports.get(spec.name),
+                ready_key=None if spec.is_zenoh_router else _ready_key(spec, argv, env),
+                stop_signal=_signal(spec.stop_signal),
+                stop_timeout=_stop_timeout(spec, stop_timeout),
+            )
+        )
+    return StackPlan(project, processes, endpoint, list(dict.fromkeys(output_dirs)), temp_dirs)
+
+
+__all__ = ["FIXSTREAM_ARGV", "ProcessSpec", "StackPlan", "Volume", "plan_stack"]

@@ -1,0 +1,65 @@
+"""Readiness probes: a TCP port that accepts (the embedded router) and liveliness tokens (services)."""
+
+from __future__ import annotations
+
+import contextlib
+import socket
+import threading
+from typing import Any
+
+
+def port_open(port: int, host: str = "127.0.0.1", timeout: float = 0.2) -> bool:
+    try:
+        with socket.create_connection((host, port), timeout=timeout):
+            return True
+    except OSError:
+        return False
+
+
+class LivelinessWatch:
+    """A client session on the loopback router that tracks ``fixstream/alive/**`` tokens."""
+
+    def __init__(self, endpoint: str, key_expr: str = "fixstream/alive/**") -> None:
+        self.endpoint = endpoint
+        self.key_expr = key_expr
+        self._alive: set[str] = set()
+        self._lock = threading.Lock()
+        self._session: Any = None
+        self._subscriber: Any = None
+        self._zenoh: Any = None
+
+    def open(self) -> None:
+        import zenoh
+
+        from ..session import open_session
+        from ..settings import ZenohSettings
+
+        self._zenoh = zenoh
+        self._session = open_session(ZenohSettings(mode="client", connect=[self.endpoint], listen=[]))
+        self._subscriber = self._session.liveliness().declare_subscriber(self.key_expr, self._on_sample, history=True)
+
+    def _on_sample(self, sample: Any) -> None:
+        key = str(sample.key_expr)
+        with self._lock:
+            if sample.kind == self._zenoh.SampleKind.PUT:
+                self._alive.add(key)
+            else:
+                self._alive.discard(key)
+
+    def match(self, key_expr: str) -> str | None:
+        """An alive token matching ``key_expr`` (wildcards allowed), or None."""
+        if self._session is None:
+            return None
+        ke = self._zenoh.KeyExpr(key_expr)
+        with self._lock:
+            alive = sorted(self._alive)
+        return next((k for k in alive if ke.intersects(self._zenoh.KeyExpr(k))), None)
+
+    def close(self) -> None:
+        if self._session is None:
+            return
+        with contextlib.suppress(Exception):
+            self._subscriber.undeclare()
+        with contextlib.suppress(Exception):
+            self._session.close()
+        self._session = None
