@@ -1,0 +1,144 @@
+"""Play a scenario onto Zenoh: wait for the named services, then start marker, events, end marker.
+
+The events are exactly :func:`services.player.timeline.iter_events` (stamp order, ``header.source`` =
+``player/<instance>``, per-key ``header.seq``), paced by their data stamps at ``rate`` times real time
+(0: as fast as the network takes them). The end marker on ``fixstream/scenario/<name>`` carries the
+number of messages published per key. The player holds the liveliness token
+``fixstream/alive/player/<instance>`` while it runs.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+import time
+from dataclasses import dataclass
+
+import zenoh
+
+from shared import keys
+
+from .pacing import Pacer
+from .publish import Publishers
+from .scenario import Scenario
+from .timeline import iter_events, marker
+
+log = logging.getLogger("fixstream.player")
+
+
+class WaitTimeout(TimeoutError):
+    """The services a scenario waits for did not all become alive in time."""
+
+    def __init__(self, missing: list[str], timeout_s: float) -> None:
+        super().__init__(f"no live token on {', '.join(missing)} after {timeout_s:g} s")
+        self.missing = missing
+
+
+@dataclass
+class PlayResult:
+    """What one play published: counts per key (data only, markers excluded), and whether it completed."""
+
+    published: dict[str, int]
+    completed: bool
+    wall_s: float
+
+    @property
+    def total(self) -> int:
+        return sum(self.published.values())
+
+
+def wait_for_alive(
+    session: zenoh.Session, key_exprs: list[str], timeout_s: float, stop: threading.Event | None = None
+) -> None:
+    """Block until every key expression matches at least one liveliness token.
+
+    Raises :class:`WaitTimeout` after ``timeout_s``; returns early, without raising, once ``stop`` is set.
+    """
+    if not key_exprs:
+        return
+    present: set[str] = set()
+    lock = threading.Lock()
+    changed = threading.Event()
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        with lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                present.add(str(sample.key_expr))
+            else:
+                present.discard(str(sample.key_expr))
+        changed.set()
+
+    wanted = [zenoh.KeyExpr(k) for k in key_exprs]
+    sub = session.liveliness().declare_subscriber(keys.ALIVE_ALL, on_sample, history=True)
+    deadline = time.monotonic() + timeout_s
+    try:
+        while True:
+            with lock:
+                alive = [zenoh.KeyExpr(k) for k in present]
+            missing = [str(w) for w in wanted if not any(w.intersects(a) for a in alive)]
+            if not missing:
+                log.info("alive: %s", ", ".join(key_exprs))
+                return
+            if stop is not None and stop.is_set():
+                return  # interrupted: the caller checks ``stop``
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise WaitTimeout(missing, timeout_s)
+            changed.wait(min(remaining, 0.5))
+            changed.clear()
+    finally:
+        sub.undeclare()
+
+
+def play_scenario(
+    session: zenoh.Session,
+    scenario: Scenario,
+    *,
+    seed: int | None = None,
+    run: int | None = None,
+    instance: str = "default",
+    rate: float = 1.0,
+    wait: bool = True,
+    stop: threading.Event | None = None,
+) -> PlayResult:
+    """Publish one run of ``scenario``. ``stop`` ends it early (the end marker is still sent, with the counts)."""
+    stop = stop or threading.Event()
+    seed = scenario.seed if seed is None else seed
+    scenario_key = keys.scenario(scenario.name)
+    token = session.liveliness().declare_token(keys.alive("player", instance))
+    pubs = Publishers(session)
+    try:
+        if wait:
+            wait_for_alive(session, scenario.wait_keys(), scenario.wait_timeout_s, stop)
+            if stop.is_set():
+                log.warning("%s: stopped while waiting for %s", scenario.name, ", ".join(scenario.wait_for))
+                return PlayResult({}, False, 0.0)
+        pacer = Pacer(rate, stop)
+        events = iter_events(scenario, seed, run=run, instance=instance)
+        t0 = time.monotonic()
+        last_stamp = 0
+        pubs.put(scenario_key, marker(scenario, seed, "start", 0, 0, instance))
+        completed = True
+        for ev in events:
+            if not pacer.wait(ev.stamp_ns):
+                completed = False
+                log.warning("stopped after %d messages", sum(pubs.counts.values()) - 1)
+                break
+            pubs.put(ev.key, ev.msg)
+            last_stamp = ev.stamp_ns
+        published = {k: n for k, n in pubs.counts.items() if k != scenario_key}
+        pubs.put(scenario_key, marker(scenario, seed, "end", last_stamp, 1, instance, published))
+        wall = time.monotonic() - t0
+        log.info(
+            "%s: published %d messages on %d keys in %.2f s",
+            scenario.name,
+            sum(published.values()),
+            len(published),
+            wall,
+        )
+        return PlayResult(published, completed, wall)
+    finally:
+        pubs.close()
+        with contextlib.suppress(Exception):
+            token.undeclare()

@@ -1,0 +1,248 @@
+"""The scenario file: a strict pydantic model of the public YAML format (documented in docs/scenarios.md).
+
+Loading validates everything, including each simulator's ``params`` against that simulator's own model,
+and reports every problem as ``<file>: <field path>: <message>``, e.g.
+``scenarios/x.yaml: simulators[0].params.sensors[1].dvl.sigma_mps: Input should be greater than or equal to 0``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import os
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import yaml
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
+
+from shared import keys
+
+from .simulators import NS_PER_S, SimParams, UnknownSimulator, get_simulator
+
+DEFAULT_DIR_ENV = "FIXSTREAM_SCENARIOS_DIR"
+SUFFIXES = (".yaml", ".yml")
+
+
+class ScenarioError(ValueError):
+    """A scenario file that cannot be read or does not validate; the message names the file and fields."""
+
+
+def _chunk(v: str) -> str:
+    return keys.chunk(v)
+
+
+KeyChunk = Annotated[str, AfterValidator(_chunk)]
+
+
+def _wait_name(v: str) -> str:
+    parts = v.split("/")
+    if len(parts) not in (1, 2):
+        raise ValueError(f"expected 'service' or 'service/instance', got {v!r}")
+    for p in parts:
+        keys.chunk(p)
+    return v
+
+
+def _package_name(v: str) -> str:
+    if not v.isidentifier():
+        raise ValueError(f"{v!r} is not a package name under services/")
+    return v
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+class SimulatorSpec(_Strict):
+    """One simulator: its registered kind, a unique id and its own parameters."""
+
+    kind: str = Field(min_length=1, max_length=64, description="registered simulator kind, e.g. nav_platform")
+    id: KeyChunk = Field(description="unique within the scenario; also names its random stream")
+    params: dict[str, Any] = Field(default_factory=dict, description="validated by the simulator's Params model")
+
+    _params: SimParams | None = PrivateAttr(default=None)
+
+    @model_validator(mode="after")
+    def _check_params(self) -> SimulatorSpec:
+        try:
+            cls = get_simulator(self.kind)
+        except UnknownSimulator as exc:
+            raise ValueError(f".kind: {exc}") from None
+        try:
+            self._params = cls.Params.model_validate(self.params, strict=True)
+        except ValidationError as exc:
+            raise ValueError("\n".join(f".params{_path(e['loc'])}: {_msg(e)}" for e in exc.errors())) from None
+        return self
+
+    @property
+    def validated_params(self) -> SimParams:
+        """The params as the simulator's own model (defaults filled in)."""
+        assert self._params is not None
+        return self._params
+
+
+class EstimatorSpec(_Strict):
+    """An estimator the scenario is meant for (used by ``fixstream mc`` and end-to-end comparisons)."""
+
+    kind: Annotated[str, AfterValidator(_package_name)] = Field(description="a services/<kind> package")
+    instance: KeyChunk = Field(default="default", description="instance name, unique within the scenario")
+    params: dict[str, Any] = Field(default_factory=dict, description="passed to the estimator's mc plugin")
+
+    @model_validator(mode="after")
+    def _check_kind(self) -> EstimatorSpec:
+        problems = _check_estimator(self)
+        if problems:
+            raise ValueError("\n".join(problems))
+        return self
+
+
+class Scenario(_Strict):
+    """A scenario file."""
+
+    format: Literal[1] = Field(default=1, description="version of the scenario file format")
+    name: KeyChunk = Field(description="scenario name; markers go to fixstream/scenario/<name>")
+    description: str = Field(default="", max_length=10_000)
+    seed: int = Field(default=0, ge=0, lt=2**63, description="default seed (fixstream play --seed overrides)")
+    duration_s: float = Field(gt=0.0, le=1e7, description="simulated duration, s")
+    frame_id: str = Field(default="local_enu", min_length=1, max_length=128, description="header.frame_id")
+    wait_for: list[Annotated[str, AfterValidator(_wait_name)]] = Field(
+        default_factory=list, description="'service' (any instance) or 'service/instance' that must be alive"
+    )
+    wait_timeout_s: float = Field(default=30.0, gt=0.0, le=86_400.0, description="s")
+    simulators: list[SimulatorSpec] = Field(min_length=1, max_length=1000)
+    estimators: list[EstimatorSpec] = Field(default_factory=list, max_length=1000)
+
+    @model_validator(mode="after")
+    def _unique(self) -> Scenario:
+        problems: list[str] = []
+        ids = [s.id for s in self.simulators]
+        for i, sid in enumerate(ids):
+            if sid in ids[:i]:
+                problems.append(f"simulators[{i}].id: duplicate simulator id {sid!r}")
+        instances = [e.instance for e in self.estimators]
+        for i, inst in enumerate(instances):
+            if inst in instances[:i]:
+                problems.append(f"estimators[{i}].instance: duplicate estimator instance {inst!r}")
+        if problems:
+            raise ValueError("\n".join(problems))
+        return self
+
+    @property
+    def duration_ns(self) -> int:
+        return round(self.duration_s * NS_PER_S)
+
+    def simulator_params(self, index: int) -> SimParams:
+        """The validated parameters of ``simulators[index]`` (the simulator's own Params model)."""
+        return self.simulators[index].validated_params
+
+    def wait_keys(self) -> list[str]:
+        """Liveliness key expressions that must all match a live token before the player starts."""
+        out = []
+        for name in self.wait_for:
+            service, _, instance = name.partition("/")
+            out.append(keys.alive(service, instance) if instance else f"{keys.ROOT}/alive/{service}/*")
+        return out
+
+
+def _check_estimator(est: EstimatorSpec) -> list[str]:
+    try:
+        found = importlib.util.find_spec(f"services.{est.kind}") is not None
+    except ModuleNotFoundError:
+        found = False
+    if not found:
+        return [f".kind: no estimator package services/{est.kind}"]
+    try:
+        mc = importlib.import_module(f"services.{est.kind}.mc")
+    except ModuleNotFoundError as exc:
+        if exc.name == f"services.{est.kind}.mc":
+            return []  # no mc plugin: fine for playing, ``fixstream mc`` says so
+        raise
+    model = getattr(mc, "Params", None)
+    if model is None:
+        return []
+    try:
+        model.model_validate(est.params, strict=True)
+    except ValidationError as exc:
+        return [f".params{_path(e['loc'])}: {_msg(e)}" for e in exc.errors()]
+    return []
+
+
+def _path(loc: tuple[int | str, ...]) -> str:
+    """``("sensors", 1, "sigma_m")`` -> ``.sensors[1].sigma_m``."""
+    return "".join(f"[{part}]" if isinstance(part, int) else f".{part}" for part in loc)
+
+
+def _msg(error: Any) -> str:
+    msg = str(error.get("msg", "invalid"))
+    msg = msg.removeprefix("Value error, ")
+    kind = error.get("type", "")
+    if kind not in ("missing", "extra_forbidden", "value_error", "assertion_error") and "input" in error:
+        text = repr(error["input"])
+        msg += f" (got {text[:80]}{'...' if len(text) > 80 else ''})"
+    return msg
+
+
+def format_validation_error(exc: ValidationError, source: str) -> str:
+    lines = []
+    for e in exc.errors():
+        where = _path(e["loc"]).removeprefix(".")
+        for line in _msg(e).splitlines():
+            if line.startswith((".", "[")):  # a nested path from a plugin's own model
+                lines.append(f"{source}: {where}{line}")
+            else:
+                lines.append(f"{source}: {where}: {line}" if where else f"{source}: {line}")
+    return "\n".join(lines)
+
+
+def parse_scenario(data: Any, source: str = "<scenario>") -> Scenario:
+    """Validate an already-parsed YAML document."""
+    if not isinstance(data, dict):
+        raise ScenarioError(f"{source}: expected a mapping at the top level, got {type(data).__name__}")
+    try:
+        return Scenario.model_validate(data, strict=True)
+    except ValidationError as exc:
+        raise ScenarioError(format_validation_error(exc, source)) from None
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario YAML file (raises :class:`ScenarioError`)."""
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except OSError as exc:
+        raise ScenarioError(f"{p}: cannot read: {exc.strerror or exc}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ScenarioError(f"{p}: invalid YAML: {exc}") from None
+    return parse_scenario(data, str(p))
+
+
+def default_dir() -> Path:
+    return Path(os.environ.get(DEFAULT_DIR_ENV, "scenarios"))
+
+
+def scenario_files(directory: str | Path) -> list[Path]:
+    d = Path(directory)
+    return sorted(p for p in d.iterdir() if p.suffix in SUFFIXES and p.is_file()) if d.is_dir() else []
+
+
+def resolve(name_or_path: str | Path, directory: str | Path | None = None) -> Path:
+    """A scenario file from a path, a file stem in ``directory`` or a scenario ``name`` in ``directory``."""
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    d = Path(directory) if directory is not None else default_dir()
+    for suffix in SUFFIXES:
+        candidate = d / f"{name_or_path}{suffix}"
+        if candidate.is_file():
+            return candidate
+    for f in scenario_files(d):
+        try:
+            data = yaml.safe_load(f.read_text())
+        except (OSError, yaml.YAMLError):
+            continue
+        if isinstance(data, dict) and data.get("name") == str(name_or_path):
+            return f
+    raise ScenarioError(f"{name_or_path}: no such scenario file, and no scenario of that name in {d}/")

@@ -1,0 +1,33 @@
+"""Pluggable scenario simulators: the registry, the plugin protocol and the built-in ``nav_platform``."""
+
+from .base import (
+    NS_PER_S,
+    Event,
+    ScenarioContext,
+    SimParams,
+    Simulator,
+    TruthSource,
+    TruthState,
+    child_rng,
+    child_seed,
+    sample_stamps_ns,
+)
+from .registry import PLUGIN_MODULES, UnknownSimulator, get_simulator, known_kinds, register
+
+__all__ = [
+    "NS_PER_S",
+    "PLUGIN_MODULES",
+    "Event",
+    "ScenarioContext",
+    "SimParams",
+    "Simulator",
+    "TruthSource",
+    "TruthState",
+    "UnknownSimulator",
+    "child_rng",
+    "child_seed",
+    "get_simulator",
+    "known_kinds",
+    "register",
+    "sample_stamps_ns",
+]

@@ -1,0 +1,126 @@
+"""What every simulator plugin builds on: the event tuple, the scenario context and the plugin protocol.
+
+A simulator is built once per run from its validated parameters, its own ``numpy.random.Generator`` and
+the :class:`ScenarioContext`, and then yields :class:`Event` tuples ``(stamp_ns, key, msg)`` in
+non-decreasing ``stamp_ns`` order, all within ``[0, context.duration_ns]``. Stamps are on the simulated
+clock (ns since scenario start). The player fills ``header.source`` and ``header.seq``; a simulator sets
+``header.stamp_ns`` (equal to the event stamp) and ``header.frame_id`` (``context.frame_id``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, NamedTuple, Protocol, runtime_checkable
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict
+
+from schemas import Header, Message
+
+NS_PER_S = 1_000_000_000
+
+
+class Event(NamedTuple):
+    """One message to publish: stamp on the simulated clock (ns), key expression and the message."""
+
+    stamp_ns: int
+    key: str
+    msg: Message
+
+
+class SimParams(BaseModel):
+    """Base of every simulator's parameter model: strict, closed and frozen (errors name the field)."""
+
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+@dataclass(frozen=True)
+class TruthState:
+    """True kinematic state of a platform at n instants, in the scenario frame (east, north, up)."""
+
+    position_m: np.ndarray  #: (n, 3) [east, north, up], m
+    velocity_mps: np.ndarray  #: (n, 3) [east, north, up], m/s
+    heading_rad: np.ndarray  #: (n,) clockwise from north, in [0, 2*pi)
+    pitch_rad: np.ndarray  #: (n,) nose up positive
+    roll_rad: np.ndarray  #: (n,) starboard down positive
+
+
+@runtime_checkable
+class TruthSource(Protocol):
+    """Anything that can tell a platform's exact true state at given stamps (a trajectory, for example)."""
+
+    def truth_at(self, stamps_ns: np.ndarray) -> TruthState: ...
+
+
+@dataclass
+class ScenarioContext:
+    """What a simulator knows about the scenario besides its own parameters.
+
+    ``platforms`` maps a platform id to the source of its exact truth. Simulators are built in the order
+    they appear in the scenario file; one that flies a platform registers it here, so a simulator listed
+    after it (beacon ranges, radar plots of that platform) can look the trajectory up.
+    """
+
+    scenario: str
+    frame_id: str
+    duration_ns: int
+    seed: int
+    platforms: dict[str, TruthSource] = field(default_factory=dict)
+
+    @property
+    def duration_s(self) -> float:
+        return self.duration_ns / NS_PER_S
+
+    def header(self, stamp_ns: int) -> Header:
+        """A header stamped on the simulated clock in the scenario frame (source and seq set by the player)."""
+        return Header(stamp_ns=stamp_ns, frame_id=self.frame_id)
+
+    def register_platform(self, platform: str, source: TruthSource) -> None:
+        if platform in self.platforms:
+            raise ValueError(f"platform {platform!r} is flown by two simulators")
+        self.platforms[platform] = source
+
+
+class Simulator(Protocol):
+    """The plugin protocol. ``Params`` is the plugin's own parameter model (a :class:`SimParams`)."""
+
+    Params: ClassVar[type[SimParams]]
+
+    def __init__(self, params: Any, rng: np.random.Generator, context: ScenarioContext) -> None: ...
+
+    def events(self) -> Iterator[Event]:
+        """Events in non-decreasing stamp order, each within ``[0, context.duration_ns]``."""
+        ...
+
+
+def stable_id(name: str) -> int:
+    """A 64-bit integer derived from ``name`` only (same on every machine and Python run)."""
+    return int.from_bytes(hashlib.blake2b(name.encode(), digest_size=8).digest(), "little")
+
+
+def child_seed(parent: np.random.SeedSequence, name: str) -> np.random.SeedSequence:
+    """The seed sequence of the stream called ``name`` under ``parent``.
+
+    Keyed by name, not by position: adding a simulator or a sensor does not change the noise of the others.
+    """
+    return np.random.SeedSequence(entropy=parent.entropy, spawn_key=(*parent.spawn_key, stable_id(name)))
+
+
+def child_rng(rng: np.random.Generator, name: str) -> np.random.Generator:
+    """An independent generator for the sub-stream ``name`` of ``rng`` (e.g. one per sensor)."""
+    seq = rng.bit_generator.seed_seq
+    if not isinstance(seq, np.random.SeedSequence):
+        raise TypeError("child_rng needs a Generator built from a numpy SeedSequence")
+    return np.random.Generator(np.random.PCG64(child_seed(seq, name)))
+
+
+def sample_stamps_ns(rate_hz: float, duration_ns: int, start_s: float = 0.0) -> np.ndarray:
+    """Stamps of a periodic stream: ``start + k / rate`` for every k with the stamp within the duration (ns)."""
+    period_ns = max(1, round(NS_PER_S / rate_hz))
+    start_ns = round(start_s * NS_PER_S)
+    if start_ns > duration_ns:
+        return np.zeros(0, dtype=np.int64)
+    n = (duration_ns - start_ns) // period_ns + 1
+    return start_ns + period_ns * np.arange(n, dtype=np.int64)

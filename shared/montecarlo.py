@@ -1,0 +1,154 @@
+"""Monte-Carlo runs of a scenario in-process (no Zenoh): simulators -> ordered events -> estimator cores -> metrics.
+
+Run ``i`` of ``fixstream mc SCENARIO --runs N --seed S`` uses the seed sequence
+``numpy.random.SeedSequence(S).spawn(N)[i]``, builds the scenario's simulators, takes the same ordered
+event list the player would publish (:func:`services.player.timeline.stamp`), and computes
+
+* ``sensor_stats`` (built in): per sensor key, the count and the error mean/SD/RMS of each component
+  against truth (:mod:`services.player.sensor_stats`);
+* per estimator named in the scenario, ``services/<kind>/mc.py``'s ``run_core(events, params, scenario)``.
+
+Runs are spread over processes (``concurrent.futures.ProcessPoolExecutor``, spawn start method) and
+collected by run index, so the JSON is identical for any number of workers. Aggregates: ``sensor_stats``
+pooled over all samples of all runs, and each plugin's ``aggregate(per_run)``.
+
+An mc plugin module ``services/<kind>/mc.py`` exposes::
+
+    def run_core(events: list[Event], params: dict, scenario: Scenario) -> dict   # JSON-able metrics of one run
+    def aggregate(per_run: list[dict]) -> dict                                    # over all runs
+    Params: type[pydantic.BaseModel]                                              # optional, validates params
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import math
+import multiprocessing
+import os
+import sys
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+from services.player.scenario import Scenario
+from services.player.sensor_stats import aggregate_sensor_stats, sensor_stats
+from services.player.timeline import build, player_source, stamp
+
+#: the instance name in header.source of the events fed to the cores (``player/default``, as ``fixstream play``)
+EVENT_INSTANCE = "default"
+
+
+class MonteCarloError(RuntimeError):
+    """The scenario cannot be run by ``fixstream mc`` (e.g. an estimator without an mc plugin)."""
+
+
+def load_plugin(kind: str) -> ModuleType:
+    """``services.<kind>.mc``, checked for ``run_core`` and ``aggregate``."""
+    name = f"services.{kind}.mc"
+    try:
+        module = importlib.import_module(name)
+    except ModuleNotFoundError as exc:
+        if exc.name is not None and name.startswith(exc.name):
+            raise MonteCarloError(f"estimator {kind!r} has no Monte-Carlo plugin (services/{kind}/mc.py)") from None
+        raise
+    for fn in ("run_core", "aggregate"):
+        if not callable(getattr(module, fn, None)):
+            raise MonteCarloError(f"services/{kind}/mc.py does not define {fn}()")
+    return module
+
+
+def jsonable(value: Any) -> Any:
+    """Plain JSON types: numpy scalars and arrays become numbers and lists; NaN and inf become None."""
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [jsonable(v) for v in value]
+    if hasattr(value, "tolist"):  # numpy scalar or array
+        return jsonable(value.tolist())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def run_once(scenario: Scenario, seed: int, run: int) -> dict[str, Any]:
+    """Metrics of Monte-Carlo run ``run`` (pure: the same inputs give the same dict in any process)."""
+    sim = build(scenario, seed, run)
+    events = list(stamp(sim.raw_events(), player_source(EVENT_INSTANCE)))
+    estimators: dict[str, Any] = {}
+    for est in scenario.estimators:
+        plugin = load_plugin(est.kind)
+        estimators[est.instance] = plugin.run_core(events, dict(est.params), scenario)
+    return jsonable(
+        {
+            "run": run,
+            "events": len(events),
+            "sensor_stats": sensor_stats(events, sim.context.platforms),
+            "estimators": estimators,
+        }
+    )
+
+
+def _task(args: tuple[Scenario, int, int]) -> dict[str, Any]:
+    return run_once(*args)
+
+
+def run_montecarlo(
+    scenario: Scenario,
+    runs: int,
+    seed: int | None = None,
+    workers: int | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """All runs, per-run and aggregate metrics as a JSON-able dict."""
+    from tqdm import tqdm
+
+    if runs < 1:
+        raise MonteCarloError("runs must be >= 1")
+    seed = scenario.seed if seed is None else seed
+    plugins = {est.instance: load_plugin(est.kind) for est in scenario.estimators}
+    workers = max(1, min(workers or os.cpu_count() or 1, runs))
+    results: list[dict[str, Any] | None] = [None] * runs
+    with tqdm(total=runs, desc=f"mc {scenario.name}", unit="run", file=sys.stderr, disable=not progress) as bar:
+        if workers == 1:
+            for i in range(runs):
+                results[i] = run_once(scenario, seed, i)
+                bar.update()
+        else:
+            ctx = multiprocessing.get_context("spawn")
+            with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+                futures = {pool.submit(_task, (scenario, seed, i)): i for i in range(runs)}
+                for fut in as_completed(futures):
+                    results[futures[fut]] = fut.result()
+                    bar.update()
+    per_run = [r for r in results if r is not None]
+    aggregate = {
+        "sensor_stats": aggregate_sensor_stats([r["sensor_stats"] for r in per_run]),
+        "estimators": {
+            instance: plugin.aggregate([r["estimators"][instance] for r in per_run])
+            for instance, plugin in plugins.items()
+        },
+    }
+    return jsonable(
+        {
+            "scenario": scenario.name,
+            "seed": seed,
+            "runs": runs,
+            "estimators": [{"kind": e.kind, "instance": e.instance} for e in scenario.estimators],
+            "per_run": per_run,
+            "aggregate": aggregate,
+        }
+    )
+
+
+def dumps(result: dict[str, Any]) -> str:
+    """Canonical JSON text (sorted keys, no NaN), so equal results give equal files."""
+    return json.dumps(result, indent=2, sort_keys=True, allow_nan=False) + "\n"
+
+
+def write(result: dict[str, Any], path: str | Path) -> None:
+    p = Path(path)
+    if p.parent and not p.parent.exists():
+        p.parent.mkdir(parents=True)
+    p.write_text(dumps(result))
