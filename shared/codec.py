@@ -37,8 +37,21 @@ def encode(msg: Message) -> bytes:
     return msgpack.packb(msg.model_dump(mode="python"), use_bin_type=True)
 
 
+_MODEL_CACHE: dict[str, type[Message]] = {}
+
+
 def model_for_encoding(encoding: str) -> type[Message]:
     """Resolve ``application/msgpack;fixstream.Name/1`` to the model class, or raise DecodeError."""
+    cached = _MODEL_CACHE.get(encoding)
+    if cached is not None:
+        return cached
+    model = _resolve(encoding)
+    if len(_MODEL_CACHE) < 4096:  # encodings come from the network: bound what is remembered
+        _MODEL_CACHE[encoding] = model
+    return model
+
+
+def _resolve(encoding: str) -> type[Message]:
     if not encoding.startswith(_PREFIX):
         raise DecodeError("bad_encoding", f"expected {MEDIA_TYPE};fixstream.<Model>/<v>, got {encoding!r}")
     schema = encoding[len(_PREFIX) :]

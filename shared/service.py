@@ -139,6 +139,7 @@ class Service:
         self.diag_suppressed = 0
         self._declared: list[Any] = []
         self._subs: list[Subscription] = []
+        self._match_cache: dict[str, Subscription | None] = {}
         self.started_at = time.time()
         self.rx_time_ns = 0
 
@@ -299,11 +300,14 @@ class Service:
         self._last_stamp[key] = msg.header.stamp_ns
 
     def _match(self, key: str) -> Subscription | None:
+        """The first subscription whose key expression intersects ``key`` (memoised per key)."""
+        if key in self._match_cache:
+            return self._match_cache[key]
         ke = zenoh.KeyExpr(key)
-        for sub in self._subs:
-            if zenoh.KeyExpr(sub.key_expr).intersects(ke):
-                return sub
-        return None
+        found = next((s for s in self._subs if zenoh.KeyExpr(s.key_expr).intersects(ke)), None)
+        if len(self._match_cache) < 65536:
+            self._match_cache[key] = found
+        return found
 
     def _enqueue(self, sample: zenoh.Sample) -> None:
         item = (str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding), time.time_ns())
