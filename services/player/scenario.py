@@ -138,11 +138,16 @@ class Scenario(_Strict):
 
     def wait_keys(self) -> list[str]:
         """Liveliness key expressions that must all match a live token before the player starts."""
-        out = []
-        for name in self.wait_for:
-            service, _, instance = name.partition("/")
-            out.append(keys.alive(service, instance) if instance else f"{keys.ROOT}/alive/{service}/*")
-        return out
+        return wait_keys(self.wait_for)
+
+
+def wait_keys(names: list[str]) -> list[str]:
+    """'service' (any instance) or 'service/instance' -> liveliness key expressions."""
+    out = []
+    for name in names:
+        service, _, instance = _wait_name(name).partition("/")
+        out.append(keys.alive(service, instance) if instance else f"{keys.ROOT}/alive/{service}/*")
+    return out
 
 
 def _check_estimator(est: EstimatorSpec) -> list[str]:

@@ -21,6 +21,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, help="override the scenario's seed")
     parser.add_argument("--run", type=int, help="play Monte-Carlo run I of --seed (as fixstream mc computes it)")
     parser.add_argument("--no-wait", action="store_true", help="do not wait for the scenario's wait_for services")
+    parser.add_argument(
+        "--wait-for",
+        action="append",
+        default=[],
+        metavar="SERVICE[/INSTANCE]",
+        help="also wait for this service's liveliness before publishing (repeatable; works for .mcap too)",
+    )
+    parser.add_argument("--wait-timeout", type=float, default=30.0, help="seconds to wait for --wait-for services")
     parser.add_argument("--dir", help="scenario directory for names (default $FIXSTREAM_SCENARIOS_DIR or scenarios)")
     parser.add_argument("--linger", type=float, default=0.5, help="seconds to stay connected after the end marker")
     add_zenoh_arguments(parser)
@@ -52,14 +60,21 @@ def run(args: argparse.Namespace) -> int:
         if not Path(args.file).is_file():
             print(f"fixstream play: {args.file}: no such file", file=sys.stderr)
             return 2
+        from services.player.player import WaitTimeout, wait_for_alive
+        from services.player.scenario import wait_keys
+
         install_signal_handlers()
         session = open_session(zenoh_settings_from(args))
         try:
+            wait_for_alive(session, wait_keys(args.wait_for), args.wait_timeout, stop)
             result = replay(session, args.file, rate=args.rate, stop=stop)
             time.sleep(max(args.linger, 0.0))
         except (McapReadError, OSError) as exc:
             print(f"fixstream play: {args.file}: {exc}", file=sys.stderr)
             return 2
+        except WaitTimeout as exc:
+            print(f"fixstream play: {args.file}: waiting for services: {exc}", file=sys.stderr)
+            return 3
         finally:
             session.close()
         print(
@@ -74,6 +89,8 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         scenario = load_scenario(resolve(args.file, args.dir))
+        if args.wait_for:
+            scenario = scenario.model_copy(update={"wait_for": [*scenario.wait_for, *args.wait_for]})
     except ScenarioError as exc:
         print(f"fixstream play: {exc}", file=sys.stderr)
         return 2
