@@ -140,6 +140,8 @@ class Service:
         self._declared: list[Any] = []
         self._subs: list[Subscription] = []
         self._match_cache: dict[str, Subscription | None] = {}
+        #: what an offline run (no session) published, in order
+        self.outbox: list[Output] = []
         self.started_at = time.time()
         self.rx_time_ns = 0
 
@@ -200,12 +202,15 @@ class Service:
         return 0
 
     def publish(self, key: str, msg: Message) -> None:
-        """Stamp source and per-key seq, encode and put."""
-        assert self.session is not None
+        """Stamp source and per-key seq, encode and put (offline: append to :attr:`outbox`)."""
         seq = self._seq.get(key, 0)
         self._seq[key] = seq + 1
         header = msg.header.model_copy(update={"source": self.source, "seq": seq})
         stamped = msg.model_copy(update={"header": header})
+        if self.session is None:
+            self.outbox.append(Output(key, stamped))
+            self.counters.published += 1
+            return
         pub = self._publishers.get(key)
         if pub is None:
             pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
@@ -234,10 +239,8 @@ class Service:
         level: Literal["info", "warning", "error"] = "warning",
         stamp_ns: int = 0,
     ) -> None:
-        """Publish a Diagnostic (rate-limited per reason; counts are never lost, only messages)."""
-        if self.session is None:
-            return
-        if self.diag_rate_hz > 0 and not self._limiter.allow(reason, time.monotonic()):
+        """Publish a Diagnostic (rate-limited per reason online; counts are never lost, only messages)."""
+        if self.session is not None and self.diag_rate_hz > 0 and not self._limiter.allow(reason, time.monotonic()):
             self.diag_suppressed += 1
             return
         diag = Diagnostic(
@@ -252,6 +255,20 @@ class Service:
             counts=counts,
         )
         self.publish(keys.diag(self.name, self.instance), diag)
+
+    def run_offline(self, events: Iterable[tuple[str, Message]]) -> list[Output]:
+        """Feed messages through the same decode/validate/dispatch path without Zenoh; return outputs.
+
+        Each message is encoded with the wire codec first, so an offline run and a run over Zenoh see
+        identical bytes. Outputs (fixes and diagnostics) are stamped with source and seq as online.
+        """
+        if self.session is not None:
+            raise RuntimeError("run_offline is for a service without a Zenoh session")
+        self._subs = self.subscriptions()
+        start = len(self.outbox)
+        for key, msg in events:
+            self.process(key, codec.encode(msg), codec.encoding_of(type(msg)), rx_time_ns=0)
+        return self.outbox[start:]
 
     def process(self, key: str, payload: bytes, encoding: str, rx_time_ns: int | None = None) -> None:
         """Decode, validate and dispatch one sample (also callable without Zenoh, for tests).

@@ -129,3 +129,21 @@ def test_process_without_zenoh_counts_rejections() -> None:
     svc.process(IN_KEY, b"", "text/plain")
     assert svc.counters.rejected == 2
     assert svc.counters.rejected_by_reason == {"bad_msgpack": 1, "bad_encoding": 1}
+
+
+def test_run_offline_uses_the_same_path_and_stamps_outputs() -> None:
+    svc = DepthEcho(ServiceSettings(instance="t3"), ZenohSettings())
+    events = [
+        (IN_KEY, Depth(header=Header(stamp_ns=10), depth_m=1.0)),
+        (IN_KEY, Depth(header=Header(stamp_ns=5), depth_m=2.0)),  # backwards: rejected
+        (IN_KEY, Depth(header=Header(stamp_ns=20), depth_m=150.0)),  # refused by the handler
+        (IN_KEY, Depth(header=Header(stamp_ns=30), depth_m=3.0)),
+    ]
+    out = svc.run_offline(events)
+    fixes = [o for o in out if o.key == OUT_KEY]
+    diags = [o.msg for o in out if o.key == keys.diag("echo_test", "t3")]
+    assert [(f.msg.header.seq, f.msg.header.source, f.msg.depth_m) for f in fixes] == [  # type: ignore[attr-defined]
+        (0, "echo_test/t3", 1.0),
+        (1, "echo_test/t3", 3.0),
+    ]
+    assert [d.reason for d in diags] == ["stamp_backwards", "too_deep"]  # type: ignore[attr-defined]
