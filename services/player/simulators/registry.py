@@ -16,6 +16,12 @@ from .base import Simulator
 #: kind -> module that registers it (imported on first use)
 PLUGIN_MODULES: dict[str, str] = {
     "nav_platform": "services.player.simulators.nav_platform",
+    # one per estimator issue; each module registers the kinds it simulates
+    "lbl_nav": "services.lbl_nav.simulator",
+    "terrain_nav": "services.terrain_nav.simulator",
+    "rd_group": "services.rd_nav.simulator",
+    "pcl_tracker": "services.pcl_tracker.simulator",
+    "attitude": "services.attitude.simulator",
 }
 
 _REGISTRY: dict[str, type[Simulator]] = {}
