@@ -34,19 +34,11 @@ import zenoh
 from schemas import Diagnostic, Header, Message, ScenarioMarker
 
 from . import codec, keys
+from .errors import InputRejected
 from .session import open_session
 from .settings import ServiceSettings, ZenohSettings
 
 log = logging.getLogger("fixstream.service")
-
-
-class InputRejected(ValueError):
-    """Raised by a handler or core for an input it refuses; the service reports it and carries on."""
-
-    def __init__(self, reason: str, detail: str = "") -> None:
-        super().__init__(f"{reason}: {detail}" if detail else reason)
-        self.reason = reason
-        self.detail = detail
 
 
 @dataclass(frozen=True)

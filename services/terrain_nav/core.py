@@ -21,7 +21,7 @@ import numpy as np
 
 from schemas import BaroAltitude, Header, InsSample, Message, NavReset, RadioAltimeter
 from schemas.terrain_nav import TerrainFix, TerrainVerdict
-from shared.service import InputRejected
+from shared.errors import InputRejected
 
 from . import conditions as cond
 from .config import TerrainNavConfig

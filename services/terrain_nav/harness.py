@@ -13,7 +13,7 @@ from typing import Literal
 
 from schemas import Message
 from schemas.terrain_nav import TerrainFix, TerrainVerdict
-from shared.service import InputRejected
+from shared.errors import InputRejected
 
 from .base_algorithm import BaseRecurrentSearch
 from .config import TerrainNavConfig

@@ -1,0 +1,49 @@
+"""Motion and measurement models of the second-order (constant-acceleration) Kalman filter, eq. (3).
+
+State ordering is axis-blocked (§2.1): alpha = [x Vx ax  y Vy ay  z Vz az] in m, m/s, m/s^2.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .geometry import F64
+
+#: position, velocity and acceleration components of the axis-blocked state (basic slices: views, no copies)
+POS = slice(0, 9, 3)
+VEL = slice(1, 9, 3)
+ACC = slice(2, 9, 3)
+
+#: H (3x9): picks the positions (ones at (0,0), (1,3), (2,6))
+H_POS: F64 = np.zeros((3, 9))
+H_POS[0, 0] = H_POS[1, 3] = H_POS[2, 6] = 1.0
+
+
+def transition_axis(dt_s: float) -> F64:
+    """Per-coordinate transition b(dt) = [[1, dt, dt^2/2], [0, 1, dt], [0, 0, 1]]."""
+    return np.array([[1.0, dt_s, 0.5 * dt_s * dt_s], [0.0, 1.0, dt_s], [0.0, 0.0, 1.0]])
+
+
+def transition(dt_s: float) -> F64:
+    """B(dt) = blkdiag(b, b, b) (9x9)."""
+    b = transition_axis(dt_s)
+    out = np.zeros((9, 9))
+    for c in range(3):
+        out[3 * c : 3 * c + 3, 3 * c : 3 * c + 3] = b
+    return out
+
+
+def jerk_input(dt_s: float) -> F64:
+    """S (3x9): maps a jerk held constant over one step (m/s^3) into the state increment."""
+    g = np.array([dt_s**3 / 6.0, dt_s**2 / 2.0, dt_s])
+    s = np.zeros((3, 9))
+    for c in range(3):
+        s[c, 3 * c : 3 * c + 3] = g
+    return s
+
+
+def process_noise(dt_s: float, d_a: tuple[float, float, float]) -> F64:
+    """Random-manoeuvre matrix M = S^T D_a S (9x9) [RECON of the OCR's "M=S'SD"]; D_a = diag(D_x, D_y, D_z)."""
+    s = jerk_input(dt_s)
+    m = (s.T * np.asarray(d_a, dtype=np.float64)) @ s
+    return 0.5 * (m + m.T)
