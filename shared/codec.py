@@ -11,6 +11,7 @@ from __future__ import annotations
 from typing import Any
 
 import msgpack
+import zenoh
 from pydantic import ValidationError
 
 from schemas import MODELS, Message
@@ -30,6 +31,17 @@ class DecodeError(ValueError):
 
 def encoding_of(model: type[Message]) -> str:
     return _PREFIX + model.schema_id()
+
+
+_ZENOH_ENCODINGS: dict[str, zenoh.Encoding] = {}
+
+
+def zenoh_encoding(encoding: str) -> zenoh.Encoding:
+    """The ``zenoh.Encoding`` for an encoding string, built once per string (hot publish paths)."""
+    enc = _ZENOH_ENCODINGS.get(encoding)
+    if enc is None:
+        enc = _ZENOH_ENCODINGS[encoding] = zenoh.Encoding(encoding)
+    return enc
 
 
 def encode(msg: Message) -> bytes:

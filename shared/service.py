@@ -207,7 +207,7 @@ class Service:
         if pub is None:
             pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
             self._publishers[key] = pub
-        pub.put(codec.encode(stamped), encoding=zenoh.Encoding(codec.encoding_of(type(msg))))
+        pub.put(codec.encode(stamped), encoding=codec.zenoh_encoding(codec.encoding_of(type(msg))))
         self.counters.published += 1
 
     def reject(self, key: str, reason: str, detail: str = "", stamp_ns: int = 0) -> None:

@@ -27,7 +27,7 @@ class Publishers:
                 key, congestion_control=zenoh.CongestionControl.BLOCK, reliability=zenoh.Reliability.RELIABLE
             )
             self._pubs[key] = pub
-        pub.put(payload, encoding=zenoh.Encoding(encoding))
+        pub.put(payload, encoding=codec.zenoh_encoding(encoding))
         self.counts[key] += 1
 
     def put(self, key: str, msg: Message) -> None:
