@@ -207,3 +207,42 @@ def load_geotiff(
         arr, x0, z0 = data.T, west, south
     arr = block_average(arr, _factor(cell_m, pixel))
     return ReferenceMap(dem=arr, x0_m=float(x0), z0_m=float(z0), cell_m=float(cell_m), datum=datum)
+
+
+# --- any supported file ---------------------------------------------------------------------------------------
+
+#: the repository root: relative map paths that do not exist from the working directory are tried here
+REPO_ROOT = Path(__file__).resolve().parents[2]
+GEOTIFF_SUFFIXES = (".tif", ".tiff")
+
+
+def resolve_map_path(path: str | Path) -> Path:
+    """An absolute path as is; a relative one from the working directory, else from the repository root."""
+    p = Path(path)
+    if p.is_absolute():
+        return p
+    for base in (Path.cwd(), REPO_ROOT):
+        q = base / p
+        if q.exists() or q.with_suffix(".npy").exists():
+            return q
+    return Path.cwd() / p
+
+
+def load_map(path: str | Path, cell_m: float | None = None, x_axis: Literal["north", "east"] = "north") -> ReferenceMap:
+    """Load a reference map by its suffix: GeoTIFF (``.tif``/``.tiff``, needs ``cell_m``) or ``.npy`` + sidecar.
+
+    Relative paths are resolved by :func:`resolve_map_path`. Raises ``FileNotFoundError`` or ``ValueError``
+    with the path in the message.
+    """
+    p = resolve_map_path(path)
+    if p.suffix.lower() in GEOTIFF_SUFFIXES:
+        if cell_m is None:
+            raise ValueError(f"{p}: a GeoTIFF map needs the cell size to block-average to (cell_m)")
+        if not p.exists():
+            raise FileNotFoundError(f"map file {p} does not exist")
+        return load_geotiff(p, cell_m, x_axis)
+    npy = p.with_suffix(".npy")
+    for f in (npy, npy.with_suffix(".json")):
+        if not f.exists():
+            raise FileNotFoundError(f"map file {f} does not exist (a .npy map needs its .json sidecar)")
+    return load_npy(npy, cell_m)

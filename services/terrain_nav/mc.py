@@ -1,0 +1,103 @@
+"""Monte-Carlo plugin of ``fixstream mc`` (see :mod:`shared.montecarlo`): the core over the player's events.
+
+For each run, the reference map is rebuilt exactly as the run's ``terrain_nav`` simulator built it (its
+parameters from the scenario, the terrain seed from its ``Truth`` extras, ``map_file`` if named), the
+vehicle's INS / radio-altimeter / baro / reset messages go through :meth:`TerrainNavigator.step` in event
+order, and :func:`services.terrain_nav.metrics.score_run` scores the outputs against the truth stream.
+
+Per run: availability (a valid fix within ``availability_s``) and the time of the first valid fix, the fix
+errors in cells, false fixes (> 1 cell on either axis), verdict states and how often each of C2-C4 was
+false once C1 held (which condition blocked), vertical-channel errors against truth and against
+3 sqrt(P_hh), and the refused inputs by reason. :func:`aggregate` adds them up over runs.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from schemas import Message, Truth
+from services.player.scenario import Scenario
+from services.player.simulators import Event
+from shared import keys
+from shared.errors import InputRejected
+
+from . import metrics
+from .config import TerrainNavConfig
+from .core import TerrainNavigator
+from .simulator import BARO_KIND, INS_KIND, KIND, RADALT_KIND, RESET_KIND, TerrainFlightParams, scenario_world
+
+
+class Params(BaseModel):
+    """``estimators[].params`` of a scenario for ``kind: terrain_nav``."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    vehicle: str | None = Field(
+        default=None, description="platform of the terrain_nav simulator (default: the only one)"
+    )
+    config: dict[str, Any] = Field(default_factory=dict, description="TerrainNavConfig overrides (digest §6 names)")
+    availability_s: float = Field(
+        default=40.0, gt=0.0, description="a valid fix within this long counts as available, s"
+    )
+
+    @model_validator(mode="after")
+    def _config_valid(self) -> Params:
+        try:
+            TerrainNavConfig(**self.config)
+        except ValidationError as exc:
+            problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+            raise ValueError(f"config: {problems}") from None
+        return self
+
+
+def _simulator_params(scenario: Scenario, vehicle: str | None) -> TerrainFlightParams:
+    found = []
+    for i, spec in enumerate(scenario.simulators):
+        p = scenario.simulator_params(i)
+        if spec.kind == KIND and isinstance(p, TerrainFlightParams) and vehicle in (None, p.platform):
+            found.append(p)
+    if len(found) != 1:
+        which = f"platform {vehicle!r}" if vehicle else "a vehicle (params.vehicle)"
+        raise ValueError(f"scenario {scenario.name}: {len(found)} terrain_nav simulators match {which}")
+    return found[0]
+
+
+def run_core(events: list[Event], params: dict[str, Any], scenario: Scenario) -> dict[str, Any]:
+    """Metrics of one run: the core fed the vehicle's input messages in event order."""
+    p = Params.model_validate(params)
+    sim = _simulator_params(scenario, p.vehicle)
+    vehicle = sim.platform
+    truths = [ev.msg for ev in events if ev.key == keys.truth(vehicle) and isinstance(ev.msg, Truth)]
+    if not truths:
+        raise ValueError(f"scenario {scenario.name}: no Truth of {vehicle} in the events")
+    terrain_seed = int(truths[0].extra["terrain_seed"])
+    world = scenario_world(sim, terrain_seed)
+    nav = TerrainNavigator(world.ref_map, TerrainNavConfig(**p.config), source=f"{KIND}/mc")
+    prefixes = tuple(f"{keys.ROOT}/sensor/{vehicle}/{k}/" for k in (INS_KIND, RADALT_KIND, BARO_KIND, RESET_KIND))
+    outputs: list[Message] = []
+    rejected: Counter[str] = Counter()
+    for ev in events:
+        if not ev.key.startswith(prefixes):
+            continue
+        try:
+            outputs.extend(nav.step(ev.msg))
+        except InputRejected as exc:
+            rejected[exc.reason] += 1
+    scored = metrics.score_run(outputs, metrics.TruthTrack(truths, world.ref_map.cell_m), p.availability_s)
+    return {
+        **scored,
+        "terrain_seed": terrain_seed,
+        "rejected": dict(sorted(rejected.items())),
+        "core_counters": dict(sorted(nav.counters.items())),
+    }
+
+
+def aggregate(per_run: list[dict[str, Any]]) -> dict[str, Any]:
+    """The core's aggregate metrics, plus the refused inputs by reason over all runs."""
+    rejected: Counter[str] = Counter()
+    for r in per_run:
+        rejected.update(r.get("rejected", {}))
+    return {**metrics.aggregate(per_run), "rejected": dict(sorted(rejected.items()))}
