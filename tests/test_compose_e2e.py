@@ -3,6 +3,7 @@ holding the scenario's truth and sensor streams. Scenario and recordings are red
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -47,14 +48,26 @@ def test_up_records_the_demo_scenario(tmp_path: Path) -> None:
         reader = make_reader(f)
         summary = reader.get_summary()  # finalised on SIGTERM: summary and footer written
         assert summary is not None
-        counts = Counter(channel.topic for _, channel, _ in reader.iter_messages())
+        counts: Counter[str] = Counter()
+        recorder_diags = []
+        for _, channel, message in reader.iter_messages():
+            counts[channel.topic] += 1
+            if channel.topic == "fixstream/diag/recorder/main":
+                recorder_diags.append(json.loads(message.data))
     for platform in platforms:
         assert counts[f"fixstream/truth/{platform}"] > 0, counts
         assert any(k.startswith(f"fixstream/sensor/{platform}/") for k in counts), counts
     published = re.search(r"published (\d+) messages", out)
     assert published is not None, out
     streams = sum(n for k, n in counts.items() if k.startswith(("fixstream/truth/", "fixstream/sensor/")))
-    assert streams == int(published.group(1))  # nothing the player published was lost on the way
+    # the demo publishes a few deliberately invalid samples (NaN) that the recorder refuses and reports:
+    # everything the player published was either recorded or refused with a diagnostic, nothing lost
+    # (each refusal also shows as a seq gap of the player's stream, reported as seq_gap)
+    refused = max((d["count"] for d in recorder_diags if d["reason"] == "non_finite"), default=0)
+    gaps = max((d["count"] for d in recorder_diags if d["reason"] == "seq_gap"), default=0)
+    assert gaps == refused
+    assert streams + refused == int(published.group(1))
+    assert {d["reason"] for d in recorder_diags} <= {"non_finite", "seq_gap"}, [d["reason"] for d in recorder_diags]
     assert not (REPO / "recordings").exists() or not any(
         p.stat().st_mtime > files[0].stat().st_mtime - 60 for p in (REPO / "recordings").glob("*.mcap")
     )
