@@ -1,0 +1,97 @@
+"""One valid example of every digest-002 model (RD-LBL navigation and the base coordinator)."""
+
+from __future__ import annotations
+
+from schemas import Header, Message
+from schemas.rd_nav import BeaconAssignment, DepartureGrant, FollowerObs, RdNavFix, TdoaCycle, VehicleStatus
+
+H = Header(stamp_ns=1_000_012_345_678_901, frame_id="base_ned", source="rd_nav/auv4", seq=3)
+
+EXAMPLES: dict[str, Message] = {
+    "TdoaCycle": TdoaCycle(
+        header=H,
+        auv_id="auv4",
+        leader_id="auv1",
+        cycle_seq=12,
+        assignment_epoch=1,
+        t1_local_s=512.25,
+        leader_pos_ned_m=[2481.935, 1500.0, 100.0],
+        followers=[
+            FollowerObs(
+                follower_id="auv2",
+                pos_ned_m=[0.0, 0.0, 100.0],
+                t_rx_local_s=514.72,
+                dT_s=2.472263,
+                tau_s=0.5,
+                r1j_m=2900.0,
+                s_m=2958.39,
+                d_m=58.39,
+                delta_ne_m=[1.2, 3.4],
+                valid=True,
+            ),
+            FollowerObs(
+                follower_id="auv3",
+                pos_ned_m=[0.0, 3000.0, 100.0],
+                t_rx_local_s=517.72,
+                dT_s=5.472263,
+                tau_s=3.5,
+                r1j_m=2900.0,
+                s_m=9000.0,
+                d_m=6100.0,
+                delta_ne_m=[3.0, 7.9],
+                valid=False,
+                flag="WINDOW_REJECT",
+            ),
+        ],
+        c_mps=1500.2,
+        sigma_c_mps=0.3,
+        depth_m=80.0,
+        status="PARTIAL",
+        flags=["PARTIAL", "WINDOW_REJECT:auv3"],
+    ),
+    "RdNavFix": RdNavFix(
+        header=H,
+        auv_id="auv4",
+        estimator="PF",
+        kind="CYCLE",
+        t_local_s=512.25,
+        position_ned_m=[827.3, 1500.5, 80.0],
+        cov_xy_m2=[[0.22, 0.01], [0.01, 0.06]],
+        status="TRACKING",
+        valid=True,
+        cycle_status="USED",
+        leader_id="auv1",
+        cycle_seq=12,
+        n_eff=640.5,
+        n_particles=1000,
+        reinit_count=0,
+        beacons_used=["auv1", "auv2", "auv3"],
+        residuals_m=[0.3, -0.2],
+        nis=1.7,
+        drms_crlb_m=0.53,
+        cycles_since_update=0,
+    ),
+    "VehicleStatus": VehicleStatus(
+        header=H,
+        auv_id="auv5",
+        event="DEPARTED",
+        t_local_s=77.5,
+        node_id="n4",
+        position_ned_m=[100.0, 200.0, 100.0],
+        planned_route_ned_m=[[1000.0, 2000.0, 80.0]],
+        speed_mps=1.5,
+    ),
+    "BeaconAssignment": BeaconAssignment(
+        header=H,
+        epoch=4,
+        leader_id="auv1",
+        follower_ids=["auv2", "auv3"],
+        tau_s=[0.5, 3.5],
+        cycle_period_s=10.0,
+        valid_from_cycle=None,
+        positions_ned_m=[[2481.935, 1500.0, 100.0], [0.0, 0.0, 100.0], [0.0, 3000.0, 100.0]],
+        cost_m=1.2,
+        reason="gdop",
+    ),
+    "DepartureGrant": DepartureGrant(header=H, auv_id="auv2", epoch=4, reason="fifo"),
+}
