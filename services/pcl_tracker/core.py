@@ -13,16 +13,18 @@ from __future__ import annotations
 import math
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel
 
 from schemas.base import Header
 from schemas.pcl_tracker import PclScanReport, PclTrackReport
 from schemas.radar import BistaticConfigUpdate, BistaticScan
-from shared.service import InputRejected
+from shared.errors import InputRejected
 
-from .association import assign_gnn, assign_nn, gate_matrix
+from .association import GatedPairs, assign_pairs, gate_pairs
 from .config import PclTrackerConfig
 from .filter import (
     ConvertedPlots,
@@ -36,7 +38,7 @@ from .filter import (
     ukf_bistatic_update,
 )
 from .geometry import BoolArray, FloatArray
-from .initiation import bistatic_to_cartesian, ring_ellipse_test, two_plot_bistatic_estimate, ukf_only_init
+from .initiation import bistatic_to_cartesian, ring_gate_pairs, two_plot_bistatic_estimate, ukf_only_init
 from .models import plot_covariance
 from .plots import NormalisedPlots, normalise_plots
 from .ut import CholeskyStats, TransformResult, symmetrize
@@ -63,16 +65,44 @@ class TrackState:
 
 
 @dataclass
-class Candidate:
-    """A first plot awaiting a partner (digest §5.4)."""
+class CandidateSet:
+    """First plots awaiting a partner (digest §5.4), as arrays; kept in (scan_id, plot_id) order."""
 
-    plot_id: str
-    scan_id: int
-    t_ns: int
-    z: FloatArray  # (4,) [r_b, a, e, v_b]
-    sig: FloatArray  # (4,)
-    zc: FloatArray  # (3,) converted position
-    Rc: FloatArray  # (3, 3)
+    plot_id: list[str]
+    scan_id: NDArray[np.int64]  # (C,)
+    t_ns: NDArray[np.int64]  # (C,)
+    z: FloatArray  # (C, 4) [r_b, a, e, v_b]
+    sig: FloatArray  # (C, 4)
+    zc: FloatArray  # (C, 3) converted position
+    Rc: FloatArray  # (C, 3, 3)
+
+    @classmethod
+    def empty(cls) -> CandidateSet:
+        return cls([], np.zeros(0, np.int64), np.zeros(0, np.int64), *(np.zeros((0, *d)) for d in _CAND_DIMS))
+
+    def __len__(self) -> int:
+        return len(self.plot_id)
+
+    def take(self, idx: NDArray[np.int64]) -> CandidateSet:
+        return CandidateSet(
+            [self.plot_id[i] for i in idx.tolist()],
+            self.scan_id[idx],
+            self.t_ns[idx],
+            self.z[idx],
+            self.sig[idx],
+            self.zc[idx],
+            self.Rc[idx],
+        )
+
+    def extend(self, other: CandidateSet) -> CandidateSet:
+        return CandidateSet(
+            self.plot_id + other.plot_id,
+            *(np.concatenate([getattr(self, k), getattr(other, k)]) for k in _CAND_ARRAYS),
+        )
+
+
+_CAND_ARRAYS = ("scan_id", "t_ns", "z", "sig", "zc", "Rc")
+_CAND_DIMS = ((4,), (4,), (3,), (3, 3))
 
 
 @dataclass
@@ -80,14 +110,18 @@ class _ScanWork:
     """Per-scan bookkeeping used to build the report."""
 
     flags: list[str] = field(default_factory=list)
-    finals: list[PclTrackReport] = field(default_factory=list)
+    #: tracks dropped in this scan, frozen at the drop: (track, reason, row of its image in ``pred``)
+    dropping: list[tuple[TrackState, str, int | None]] = field(default_factory=list)
     assoc: dict[int, tuple[str, float]] = field(default_factory=dict)
     in_gate: dict[int, int] = field(default_factory=dict)
     track_flags: dict[int, list[str]] = field(default_factory=dict)
     updated: set[int] = field(default_factory=set)
     created: set[int] = field(default_factory=set)
     drops: Counter[str] = field(default_factory=Counter)
-    images: dict[int, TransformResult] = field(default_factory=dict)
+    #: the predicted bistatic images of this scan's live tracks (one batch) ...
+    pred: TransformResult | None = None
+    #: ... and, per track id, the row whose image is its output (x(k|k) = x(k|k-1) when not updated)
+    images: dict[int, int] = field(default_factory=dict)
     chol: CholeskyStats = field(default_factory=CholeskyStats)
 
 
@@ -105,7 +139,7 @@ class PclTracker:
         self.gamma4 = self.config.tracker.gamma4
         self.gamma3 = self.config.tracker.gamma3
         self.tracks: dict[int, TrackState] = {}
-        self.candidates: list[Candidate] = []
+        self.candidates = CandidateSet.empty()
         self.next_track_id = 1
         self.last_scan_id: int | None = None
         self.last_t_ns: int | None = None
@@ -133,6 +167,11 @@ class PclTracker:
             scan = self._buffer.pop(sid)
             out.extend(self._process_checked(scan))
         return out
+
+    @property
+    def buffered_scan_ids(self) -> list[int]:
+        """Scans waiting in the reorder buffer (processed when their predecessor arrives, or by flush)."""
+        return sorted(self._buffer)
 
     def predict(self, track_id: int, stamp_ns: int) -> PclTrackReport:
         """[D] On-demand extrapolation of a live track to ``stamp_ns`` (no state change)."""
@@ -272,35 +311,29 @@ class PclTracker:
         live = sorted(self.tracks.values(), key=lambda t: (t.status != "CONFIRMED", t.track_id))
         taus = np.array([(t_ns - tr.t_ns) * 1e-9 for tr in live])
         preds = self._predict_tracks(live, taus, work.chol)
+        work.pred = preds
         for tr in live:
             tr.t_ns = t_ns
 
-        # 2. gating
-        if live and n_valid:
-            z_pred = np.stack([p.mean[0] for p in preds])
-            R_pred = np.stack([p.cov[0] for p in preds])
-            d2, logdet = gate_matrix(z_pred, R_pred, plots.z, R_plot)
-        else:
-            d2 = np.zeros((len(live), n_valid))
-            logdet = np.zeros_like(d2)
-        gated = d2 <= self.gamma4
-        in_some_gate: BoolArray = np.asarray(gated.any(axis=0), dtype=bool) if live else np.zeros(n_valid, dtype=bool)
+        # 2. gating (sparse: only pairs that can be inside the gate are evaluated, exactly)
+        gp = gate_pairs(preds.mean, preds.cov, plots.z, R_plot, self.gamma4) if live and n_valid else GatedPairs.empty()
+        in_some_gate: BoolArray = np.zeros(n_valid, dtype=bool)
+        in_some_gate[gp.plot] = True
+        n_in_gate = np.bincount(gp.track, minlength=len(live))
         for i, tr in enumerate(live):
-            work.in_gate[tr.track_id] = int(gated[i].sum())
+            work.in_gate[tr.track_id] = int(n_in_gate[i])
 
         # 3. assignment: confirmed tracks first, then tentative tracks with the remaining plots
-        cost = d2 + (logdet if trk.gnn_cost_logdet else 0.0)
-        assign = assign_gnn if trk.association == "gnn" else assign_nn
+        cost = gp.d2 + gp.logdet if trk.gnn_cost_logdet else gp.d2
         pairs: list[tuple[int, int]] = []
         used = np.zeros(n_valid, dtype=bool)
-        for group in ("CONFIRMED", "TENTATIVE"):
-            rows = np.array([i for i, tr in enumerate(live) if tr.status == group], dtype=np.int64)
-            if rows.size == 0 or n_valid == 0:
-                continue
-            g = gated[rows] & ~used[None, :]
-            for r, c in assign(cost[rows], g):
-                pairs.append((int(rows[r]), c))
-                used[c] = True
+        confirmed = np.array([tr.status == "CONFIRMED" for tr in live], dtype=bool)
+        if len(gp):
+            for group in (confirmed, ~confirmed):
+                for r, c in assign_pairs(gp, cost, group, ~used, trk.association):
+                    pairs.append((r, c))
+                    used[c] = True
+        pair_d2 = {(int(a), int(b)): float(v) for a, b, v in zip(gp.track, gp.plot, gp.d2, strict=True)}
 
         # plot conversions (UT n = 3), done once per plot and reused by update and initiation
         convertible = ~plots.low_rb
@@ -316,22 +349,23 @@ class PclTracker:
 
         # 4. update assigned tracks; misses for the others
         assigned = {i: c for i, c in pairs}
-        self._update_tracks(live, preds, assigned, plots, R_plot, conv, conv_of, d2, work)
+        self._update_tracks(live, preds, assigned, plots, R_plot, conv, conv_of, pair_d2, work)
         for i, tr in enumerate(live):
             if i in assigned:
                 continue
             tr.misses += 1
             if tr.status == "TENTATIVE":
                 tr.mn_scans += 1
-            self._maybe_drop(tr, work, sid, t_ns, pred=preds[i])
+            self._maybe_drop(tr, work, sid, t_ns, pred=i)
         for i, tr in enumerate(live):
             if tr.track_id not in work.updated:
-                work.images[tr.track_id] = preds[i]  # x(k|k) = x(k|k-1): reuse the inverse UT
+                work.images[tr.track_id] = i  # x(k|k) = x(k|k-1): reuse the inverse UT
 
         # 5. initiation
         n_init = 0
         if suppress_init:
-            self.candidates = [c for c in self.candidates if sid - c.scan_id < trk.init_L - 1]
+            cs = self.candidates
+            self.candidates = cs.take(np.flatnonzero(sid - cs.scan_id < trk.init_L - 1))
         else:
             p0 = [
                 j
@@ -343,15 +377,19 @@ class PclTracker:
 
         self._counts_history.append(n_valid)
         del self._counts_history[: -lim.burst_history_scans]
-        report = self._scan_report(sid, t_ns, work, plots, trigger="scan")
-        report = report.model_copy(
-            update={
+        report = self._scan_report(
+            sid,
+            t_ns,
+            work,
+            plots,
+            trigger="scan",
+            extra={
                 "n_associated": len(pairs),
                 "n_initiated": n_init,
                 "gap_scans": max(gap, 0),
                 "n_sigma_clamped": n_clamped,
                 "n_plots_in": len(scan.plots),
-            }
+            },
         )
         self.metrics["scans"] += 1
         self.metrics["plots_in"] += len(scan.plots)
@@ -374,38 +412,44 @@ class PclTracker:
 
     def _predict_tracks(
         self, live: list[TrackState], taus: FloatArray, chol: CholeskyStats | None = None
-    ) -> list[TransformResult]:
-        """Predict every track in place; return its predicted bistatic measurement (batch of one each)."""
+    ) -> TransformResult:
+        """Predict every track in place; return the predicted bistatic measurements, row i for live[i]."""
         trk = self.config.tracker
-        out: list[TransformResult | None] = [None] * len(live)
+        n = len(live)
+        cross = trk.measurement_model == "bistatic_ukf4"  # only that update uses the cross-covariance
+        out = TransformResult(np.zeros((n, 4)), np.zeros((n, 4, 4)), np.zeros((n, 6, 4) if cross else (n, 0, 0)))
+        phases = [tr.phase for tr in live]
         for phase in ("ukf", "bkf"):
-            idx = [i for i, tr in enumerate(live) if tr.phase == phase]
+            idx = [i for i in range(n) if phases[i] == phase]
             if not idx:
                 continue
             X = np.stack([live[i].x for i in idx])
             P = np.stack([live[i].P for i in idx])
             if phase == "ukf":
                 X, P = predict(X, P, taus[idx], trk.q_accel_var_m2s4)
-                res = bistatic_image(X, P, self.tx, trk.transform, chol)
+                res = bistatic_image(X, P, self.tx, trk.transform, chol, with_cross=cross)
             else:
                 X, P = bkf_predict(X, P, taus[idx], trk.bkf_q_r_m2s4, trk.bkf_q_ang_rad2s4)
                 res = bkf_measurement(X, P)
             for k, i in enumerate(idx):
-                live[i].x = X[k]
-                live[i].P = P[k]
-                out[i] = TransformResult(res.mean[k : k + 1], res.cov[k : k + 1], res.cross[k : k + 1])
-        return [o for o in out if o is not None]
+                tr = live[i]
+                tr.x = X[k]
+                tr.P = P[k]
+            out.mean[idx], out.cov[idx] = res.mean, res.cov
+            if cross:
+                out.cross[idx] = res.cross
+        return out
 
     def _update_tracks(
         self,
         live: list[TrackState],
-        preds: list[TransformResult],
+        preds: TransformResult,
         assigned: dict[int, int],
         plots: NormalisedPlots,
         R_plot: FloatArray,
         conv: ConvertedPlots,
         conv_of: dict[int, int],
-        d2: FloatArray,
+        pair_d2: dict[tuple[int, int], float],
         work: _ScanWork,
     ) -> None:
         trk = self.config.tracker
@@ -413,7 +457,7 @@ class PclTracker:
         bkf_rows: list[tuple[int, int]] = []
         for i, c in assigned.items():
             tr = live[i]
-            work.assoc[tr.track_id] = (plots.ids[c], float(d2[i, c]))
+            work.assoc[tr.track_id] = (plots.ids[c], pair_d2[(i, c)])
             if tr.phase == "bkf":
                 bkf_rows.append((i, c))
             elif plots.low_rb[c]:
@@ -434,11 +478,7 @@ class PclTracker:
                 kk = [conv_of[c] for c in cc]
                 X, P, _ = kf_position_update(X, P, conv.y[kk], conv.R[kk])
             else:
-                pred = TransformResult(
-                    np.concatenate([preds[i].mean for i in ii]),
-                    np.concatenate([preds[i].cov for i in ii]),
-                    np.concatenate([preds[i].cross for i in ii]),
-                )
+                pred = TransformResult(preds.mean[ii], preds.cov[ii], preds.cross[ii])
                 X, P = ukf_bistatic_update(X, P, pred, plots.z[cc], R_plot[cc])
             for k, i in enumerate(ii):
                 live[i].x, live[i].P = X[k], P[k]
@@ -469,9 +509,7 @@ class PclTracker:
             res = bistatic_to_cartesian(tr.x[None], tr.P[None], self.tx, self.config.tracker.transform, chol)
             tr.x, tr.P, tr.phase = res.mean[0], res.cov[0], "ukf"
 
-    def _maybe_drop(
-        self, tr: TrackState, work: _ScanWork, sid: int, t_ns: int, pred: TransformResult | None = None
-    ) -> None:
+    def _maybe_drop(self, tr: TrackState, work: _ScanWork, sid: int, t_ns: int, pred: int | None = None) -> None:
         trk = self.config.tracker
         reason: str | None = None
         if tr.status == "TENTATIVE" and tr.mn_hits + (trk.confirm_N - tr.mn_scans) < trk.confirm_M:
@@ -481,12 +519,9 @@ class PclTracker:
         if reason is not None:
             self._drop(tr, reason, work, sid, t_ns, pred)
 
-    def _drop(
-        self, tr: TrackState, reason: str, work: _ScanWork, sid: int, t_ns: int, pred: TransformResult | None = None
-    ) -> None:
-        rep = self._track_reports([tr], sid, t_ns, work, [pred] if pred is not None else None)[0]
-        rep = rep.model_copy(update={"status": "DROPPED", "drop_reason": reason, "confirm_progress": None})
-        work.finals.append(rep)
+    def _drop(self, tr: TrackState, reason: str, work: _ScanWork, sid: int, t_ns: int, pred: int | None = None) -> None:
+        """Remove a track; its final report is built with the scan's other reports (batched)."""
+        work.dropping.append((tr, reason, pred))
         work.drops[reason] += 1
         self.metrics[f"dropped_{reason}"] += 1
         del self.tracks[tr.track_id]
@@ -494,7 +529,7 @@ class PclTracker:
     def _reset(self, work: _ScanWork, sid: int, t_ns: int) -> None:
         for tr in sorted(self.tracks.values(), key=lambda t: t.track_id):
             self._drop(tr, "reset", work, sid, t_ns)
-        self.candidates = []
+        self.candidates = CandidateSet.empty()
 
     def _initiate(
         self,
@@ -507,45 +542,29 @@ class PclTracker:
         work: _ScanWork,
     ) -> int:
         trk, lim = self.config.tracker, self.config.limits
-        cands = [c for c in self.candidates if 1 <= sid - c.scan_id <= trk.init_L - 1 and c.t_ns < t_ns]
-        cands.sort(key=lambda c: (c.scan_id, c.plot_id))
-        paired_plots: set[int] = set()
-        spawned: set[int] = set()
-        new_pairs: list[tuple[int, int]] = []  # (candidate index, plot index)
-        if cands and p0:
-            k2 = np.array([conv_of[j] for j in p0])
-            zc2, Rc2 = conv.y[k2], conv.R[k2]
-            zc1 = np.stack([c.zc for c in cands])
-            Rc1 = np.stack([c.Rc for c in cands])
-            tau = np.array([(t_ns - c.t_ns) * 1e-9 for c in cands])
-            passed, _, _ = ring_ellipse_test(
-                zc1[:, None, :],
-                Rc1[:, None, :, :],
-                zc2[None, :, :],
-                Rc2[None, :, :, :],
-                tau[:, None],
-                trk.ring_vmin_mps,
-                trk.ring_vmax_mps,
-                self.gamma3,
+        allc = self.candidates
+        age = sid - allc.scan_id
+        usable = np.flatnonzero((age >= 1) & (age <= trk.init_L - 1) & (allc.t_ns < t_ns))
+        cands = allc.take(usable)  # already in (scan_id, plot_id) order
+        ci_arr = pj_arr = np.zeros(0, dtype=np.int64)  # (candidate index, index into p0)
+        k0 = np.array([conv_of[j] for j in p0], dtype=np.int64)
+        tau = np.asarray((t_ns - cands.t_ns) * 1e-9, dtype=np.float64)
+        if len(cands) and p0:
+            ci_arr, pj_arr = ring_gate_pairs(
+                cands.zc, cands.Rc, tau, conv.y[k0], conv.R[k0], trk.ring_vmin_mps, trk.ring_vmax_mps, self.gamma3
             )
-            for ci, pj in zip(*np.nonzero(passed), strict=True):
-                new_pairs.append((int(ci), int(pj)))
         n_created = 0
-        if new_pairs:
-            ci_arr = np.array([ci for ci, _ in new_pairs])
-            pj_arr = np.array([p0[pj] for _, pj in new_pairs])
-            z1 = np.stack([cands[ci].z for ci in ci_arr])
-            s1 = np.stack([cands[ci].sig for ci in ci_arr])
-            z2, s2 = plots.z[pj_arr], plots.sig[pj_arr]
-            tau2 = np.array([(t_ns - cands[ci].t_ns) * 1e-9 for ci in ci_arr])
+        if ci_arr.size:
+            p0_arr = np.array(p0, dtype=np.int64)
+            plot_rows = p0_arr[pj_arr]
+            z2, s2 = plots.z[plot_rows], plots.sig[plot_rows]
+            tau2 = tau[ci_arr]
             if trk.scheme == "ukf_only":
-                k2 = np.array([conv_of[j] for j in pj_arr])
-                zc1 = np.stack([cands[ci].zc for ci in ci_arr])
-                Rc1 = np.stack([cands[ci].Rc for ci in ci_arr])
-                X, P = ukf_only_init(zc1, Rc1, conv.y[k2], conv.R[k2], tau2)
+                k2 = k0[pj_arr]
+                X, P = ukf_only_init(cands.zc[ci_arr], cands.Rc[ci_arr], conv.y[k2], conv.R[k2], tau2)
                 phase = "ukf"
             else:
-                xb, Pb = two_plot_bistatic_estimate(z1, s1, z2, s2, tau2, trk.init_cov)
+                xb, Pb = two_plot_bistatic_estimate(cands.z[ci_arr], cands.sig[ci_arr], z2, s2, tau2, trk.init_cov)
                 bkf_phase = trk.scheme == "bkf_only" or (trk.scheme == "bkf_ukf" and trk.confirm_M > 0)
                 if bkf_phase:
                     X, P, phase = xb, Pb, "bkf"
@@ -554,9 +573,7 @@ class PclTracker:
                     X, P, phase = res.mean, res.cov, "ukf"
             status = "CONFIRMED" if trk.confirm_M == 0 else "TENTATIVE"
             n_conf = sum(1 for t in self.tracks.values() if t.status == "CONFIRMED")
-            for k, (ci, pj) in enumerate(new_pairs):
-                paired_plots.add(pj)
-                spawned.add(ci)
+            for k, j in enumerate(plot_rows.tolist()):
                 if status == "CONFIRMED" and n_conf >= lim.max_confirmed_tracks:
                     if "capacity" not in work.flags:
                         work.flags.append("capacity")
@@ -569,30 +586,26 @@ class PclTracker:
                 )
                 n_conf += status == "CONFIRMED"
                 work.created.add(tid)
-                work.assoc[tid] = (plots.ids[p0[pj]], math.nan)
+                work.assoc[tid] = (plots.ids[j], math.nan)
                 n_created += 1
-        spawned_ids = {id(cands[ci]) for ci in spawned}
-        keep = [
-            c
-            for c in self.candidates
-            if id(c) not in spawned_ids and sid - c.scan_id < trk.init_L - 1 and c.t_ns < t_ns
-        ]
-        for k, j in enumerate(p0):
-            if k in paired_plots:
-                continue
-            kk = conv_of[j]
-            keep.append(
-                Candidate(
-                    plot_id=plots.ids[j],
-                    scan_id=sid,
-                    t_ns=t_ns,
-                    z=plots.z[j].copy(),
-                    sig=plots.sig[j].copy(),
-                    zc=conv.y[kk].copy(),
-                    Rc=conv.R[kk].copy(),
-                )
-            )
-        self.candidates = keep
+        # candidates: drop those that spawned a track and the expired ones, add the unpaired plots of P0
+        spawned = np.zeros(len(allc), dtype=bool)
+        spawned[usable[ci_arr]] = True
+        keep = np.flatnonzero(~spawned & (sid - allc.scan_id < trk.init_L - 1) & (allc.t_ns < t_ns))
+        paired = np.zeros(len(p0), dtype=bool)
+        paired[pj_arr] = True
+        new_rows = np.array(p0, dtype=np.int64)[~paired]
+        new_k = k0[~paired]
+        fresh = CandidateSet(
+            [plots.ids[j] for j in new_rows.tolist()],
+            np.full(new_rows.size, sid, dtype=np.int64),
+            np.full(new_rows.size, t_ns, dtype=np.int64),
+            plots.z[new_rows],
+            plots.sig[new_rows],
+            conv.y[new_k],
+            conv.R[new_k],
+        )
+        self.candidates = allc.take(keep).extend(fresh)
         return n_created
 
     def _enforce_capacity(self, work: _ScanWork, sid: int, t_ns: int) -> None:
@@ -614,102 +627,141 @@ class PclTracker:
         sid: int,
         t_ns: int,
         work: _ScanWork,
-        images: list[TransformResult | None] | None,
+        images: list[int | None] | None,
+        drop_reasons: list[str] | None = None,
     ) -> list[PclTrackReport]:
-        """Reports for tracks; ``images`` are reusable bistatic images (else computed by UT of x(k|k))."""
-        if not trs:
+        """Reports for tracks, batched; ``images`` are rows of reusable images in ``work.pred`` (else the UT
+        of x(k|k) is computed).
+
+        With ``drop_reasons`` the reports are the tracks' final DROPPED reports. The reports are built
+        with ``model_construct`` from arrays checked here (finite; covariances symmetrised), which is what
+        pydantic's validation would check at about 0.1 ms per report; consumers validate on decode.
+        """
+        n = len(trs)
+        if n == 0:
             return []
         trk = self.config.tracker
-        need = [k for k in range(len(trs)) if images is None or images[k] is None or trs[k].phase == "bkf"]
-        imgs: list[TransformResult | None] = list(images) if images is not None else [None] * len(trs)
-        cart: dict[int, tuple[FloatArray, FloatArray]] = {}
+        imgs: list[int | None] = list(images) if images is not None else [None] * n
+        X = np.stack([t.x for t in trs])
+        P = np.stack([t.P for t in trs])
+        Z = np.empty((n, 4))
+        PZ = np.empty((n, 4, 4))
+        need = [k for k in range(n) if imgs[k] is None or trs[k].phase == "bkf"]
+        have = [k for k in range(n) if imgs[k] is not None and trs[k].phase != "bkf"]
+        if have:
+            assert work.pred is not None
+            rows = np.array([imgs[k] for k in have], dtype=np.int64)
+            Z[have], PZ[have] = work.pred.mean[rows], work.pred.cov[rows]
         for phase in ("ukf", "bkf"):
             idx = [k for k in need if trs[k].phase == phase]
             if not idx:
                 continue
-            X = np.stack([trs[k].x for k in idx])
-            P = np.stack([trs[k].P for k in idx])
             if phase == "ukf":
-                res = bistatic_image(X, P, self.tx, trk.transform, work.chol)
+                res = bistatic_image(X[idx], P[idx], self.tx, trk.transform, work.chol, with_cross=False)
             else:
-                res = bkf_measurement(X, P)
-                ca = bistatic_to_cartesian(X, P, self.tx, trk.transform, work.chol)
-                for m, k in enumerate(idx):
-                    cart[k] = (ca.mean[m], ca.cov[m])
-            for m, k in enumerate(idx):
-                imgs[k] = TransformResult(res.mean[m : m + 1], res.cov[m : m + 1], res.cross[m : m + 1])
+                res = bkf_measurement(X[idx], P[idx])
+                ca = bistatic_to_cartesian(X[idx], P[idx], self.tx, trk.transform, work.chol)
+                X[idx], P[idx] = ca.mean, ca.cov
+            Z[idx], PZ[idx] = res.mean, res.cov
+        Z = Z * _BISTATIC_UNITS
+        PZ = symmetrize(PZ * np.outer(_BISTATIC_UNITS, _BISTATIC_UNITS))
+        P = symmetrize(P)
+        if not (np.isfinite(X).all() and np.isfinite(P).all() and np.isfinite(Z).all() and np.isfinite(PZ).all()):
+            raise RuntimeError(f"non-finite track state in scan {sid}")
+        X_l, P_l, Z_l, PZ_l = X.tolist(), P.tolist(), Z.tolist(), PZ.tolist()
         out = []
         t_s = t_ns * 1e-9
+        assoc_of, flags_of, in_gate_of = work.assoc.get, work.track_flags.get, work.in_gate.get
+        created, updated = work.created, work.updated
         for k, tr in enumerate(trs):
-            img = imgs[k]
-            assert img is not None
-            x, P = cart.get(k, (tr.x, tr.P))
-            zb = img.mean[0] * _BISTATIC_UNITS
-            Pb = symmetrize(img.cov[0] * np.outer(_BISTATIC_UNITS, _BISTATIC_UNITS))
-            assoc = work.assoc.get(tr.track_id)
-            nis = None if assoc is None or math.isnan(assoc[1]) else assoc[1]
-            flags = list(work.track_flags.get(tr.track_id, []))
-            if tr.track_id in work.created:
+            tid = tr.track_id
+            assoc = assoc_of(tid)
+            flags = list(flags_of(tid, ()))
+            if tid in created:
                 flags.append("initiated")
-            coasted = assoc is None
-            if coasted:
+            if assoc is None:
                 flags.append("coasted")
+                nis = None
+            else:
+                nis = None if math.isnan(assoc[1]) else max(assoc[1], 0.0)
+            drop = drop_reasons[k] if drop_reasons is not None else None
+            tentative = tr.status == "TENTATIVE" and drop is None
             out.append(
-                PclTrackReport(
-                    track_id=tr.track_id,
-                    status=tr.status,  # type: ignore[arg-type]
-                    scan_id=sid,
-                    t_s=t_s,
-                    state_enu=[float(v) for v in x],
-                    cov_enu=symmetrize(P).tolist(),
-                    bistatic=[float(v) for v in zb],
-                    bistatic_cov=Pb.tolist(),
-                    associated_plot_id=assoc[0] if assoc is not None else None,
-                    nis=nis,
-                    n_plots_in_gate=work.in_gate.get(tr.track_id, 0),
-                    coasted=coasted,
-                    updated=tr.track_id in work.updated,
-                    hits=tr.hits,
-                    consecutive_misses=tr.misses,
-                    age_scans=max(sid - tr.created_scan, 0),
-                    created_scan_id=tr.created_scan,
-                    confirm_progress=[tr.mn_hits, tr.mn_scans] if tr.status == "TENTATIVE" else None,
-                    filter_phase=tr.phase,  # type: ignore[arg-type]
-                    flags=flags,
+                _built(
+                    PclTrackReport,
+                    {
+                        "track_id": tid,
+                        "status": "DROPPED" if drop is not None else tr.status,
+                        "scan_id": sid,
+                        "t_s": t_s,
+                        "state_enu": X_l[k],
+                        "cov_enu": P_l[k],
+                        "bistatic": Z_l[k],
+                        "bistatic_cov": PZ_l[k],
+                        "associated_plot_id": None if assoc is None else assoc[0],
+                        "nis": nis,
+                        "n_plots_in_gate": in_gate_of(tid, 0),
+                        "coasted": assoc is None,
+                        "updated": tid in updated,
+                        "hits": tr.hits,
+                        "consecutive_misses": tr.misses,
+                        "age_scans": max(sid - tr.created_scan, 0),
+                        "created_scan_id": tr.created_scan,
+                        "confirm_progress": [tr.mn_hits, tr.mn_scans] if tentative else None,
+                        "filter_phase": tr.phase,
+                        "drop_reason": drop,
+                        "flags": flags,
+                    },
                 )
             )
         return out
 
     def _scan_report(
-        self, sid: int, t_ns: int, work: _ScanWork, plots: NormalisedPlots | None, trigger: str
+        self,
+        sid: int,
+        t_ns: int,
+        work: _ScanWork,
+        plots: NormalisedPlots | None,
+        trigger: str,
+        extra: dict[str, Any] | None = None,
     ) -> PclScanReport:
-        live = sorted(self.tracks.values(), key=lambda t: t.track_id)
-        images: list[TransformResult | None] = [work.images.get(t.track_id) for t in live]
-        reports = self._track_reports(live, sid, t_ns, work, images) + work.finals
-        reports.sort(key=lambda r: (r.track_id, r.status == "DROPPED"))
-        nis = [v[1] for tid, v in work.assoc.items() if not math.isnan(v[1])]
-        n_plots_in = 0 if plots is None else len(plots) + sum(plots.rejected.values())
-        return PclScanReport(
-            header=Header(stamp_ns=t_ns, frame_id=self.config.geometry.frame_id, source="pcl_tracker"),
-            receiver_id=self.receiver_id,
-            illuminator_id=self.illuminator_id,
-            scan_id=sid,
-            trigger=trigger,  # type: ignore[arg-type]
-            t_s=t_ns * 1e-9,
-            tracks=reports,
-            n_plots_in=n_plots_in,
-            n_plots_rejected=dict(plots.rejected) if plots is not None else {},
-            n_plots_flagged=dict(plots.flagged) if plots is not None else {},
-            n_candidates=len(self.candidates),
-            n_tentative=sum(1 for t in live if t.status == "TENTATIVE"),
-            n_confirmed=sum(1 for t in live if t.status == "CONFIRMED"),
-            n_dropped=len(work.finals),
-            n_coasting=sum(1 for t in live if t.track_id not in work.assoc),
-            mean_nis=float(np.mean(nis)) if nis else None,
-            gate_d2=self.gamma4,
-            n_cholesky_fallbacks=work.chol.total,
-            flags=list(dict.fromkeys(work.flags)),
+        finals = self._track_reports(
+            [d[0] for d in work.dropping], sid, t_ns, work, [d[2] for d in work.dropping], [d[1] for d in work.dropping]
         )
+        live = sorted(self.tracks.values(), key=lambda t: t.track_id)
+        images: list[int | None] = [work.images.get(t.track_id) for t in live]
+        reports = self._track_reports(live, sid, t_ns, work, images) + finals
+        reports.sort(key=lambda r: (r.track_id, r.status == "DROPPED"))
+        nis = [max(v[1], 0.0) for tid, v in work.assoc.items() if not math.isnan(v[1])]
+        n_plots_in = 0 if plots is None else len(plots) + sum(plots.rejected.values())
+        values: dict[str, Any] = {
+            "header": Header(stamp_ns=t_ns, frame_id=self.config.geometry.frame_id, source="pcl_tracker"),
+            "receiver_id": self.receiver_id,
+            "illuminator_id": self.illuminator_id,
+            "scan_id": sid,
+            "trigger": trigger,
+            "t_s": t_ns * 1e-9,
+            "tracks": reports,
+            "n_plots_in": n_plots_in,
+            "n_plots_rejected": dict(plots.rejected) if plots is not None else {},
+            "n_plots_flagged": dict(plots.flagged) if plots is not None else {},
+            "n_associated": 0,
+            "n_initiated": 0,
+            "n_candidates": len(self.candidates),
+            "n_tentative": sum(1 for t in live if t.status == "TENTATIVE"),
+            "n_confirmed": sum(1 for t in live if t.status == "CONFIRMED"),
+            "n_dropped": len(finals),
+            "n_coasting": sum(1 for t in live if t.track_id not in work.assoc),
+            "gap_scans": 0,
+            "mean_nis": float(np.mean(nis)) if nis else None,
+            "gate_d2": self.gamma4,
+            "n_cholesky_fallbacks": work.chol.total,
+            "n_sigma_clamped": 0,
+            "flags": list(dict.fromkeys(work.flags)),
+        }
+        values.update(extra or {})
+        # the track reports are checked in _track_reports; validating them again here would cost ~1.5 µs each
+        return _built(PclScanReport, values)
 
     # ------------------------------------------------------------------------------------------ snapshot
     def snapshot(self) -> dict[str, Any]:
@@ -721,18 +773,23 @@ class PclTracker:
             d["P"] = t.P.tolist()
             return d
 
-        def c_dict(c: Candidate) -> dict[str, Any]:
-            d = dict(c.__dict__)
-            for k in ("z", "sig", "zc", "Rc"):
-                d[k] = getattr(c, k).tolist()
-            return d
+        c = self.candidates
+        cands = [
+            {
+                "plot_id": c.plot_id[i],
+                "scan_id": int(c.scan_id[i]),
+                "t_ns": int(c.t_ns[i]),
+                **{k: getattr(c, k)[i].tolist() for k in ("z", "sig", "zc", "Rc")},
+            }
+            for i in range(len(c))
+        ]
 
         return {
             "config": self.config.model_dump(mode="json"),
             "tx": self.tx.tolist(),
             "wavelength_m": self.wavelength_m,
             "tracks": [tr_dict(t) for t in sorted(self.tracks.values(), key=lambda t: t.track_id)],
-            "candidates": [c_dict(c) for c in self.candidates],
+            "candidates": cands,
             "next_track_id": self.next_track_id,
             "last_scan_id": self.last_scan_id,
             "last_t_ns": self.last_t_ns,
@@ -754,9 +811,14 @@ class PclTracker:
         for d in snap["tracks"]:
             t = TrackState(**{**d, "x": np.array(d["x"]), "P": np.array(d["P"])})
             self.tracks[t.track_id] = t
-        self.candidates = [
-            Candidate(**{**d, **{k: np.array(d[k]) for k in ("z", "sig", "zc", "Rc")}}) for d in snap["candidates"]
-        ]
+        cd = snap["candidates"]
+        if cd:
+            self.candidates = CandidateSet(
+                [d["plot_id"] for d in cd],
+                np.array([d["scan_id"] for d in cd], dtype=np.int64),
+                np.array([d["t_ns"] for d in cd], dtype=np.int64),
+                *(np.array([d[k] for d in cd], dtype=np.float64) for k in ("z", "sig", "zc", "Rc")),
+            )
         self.next_track_id = snap["next_track_id"]
         self.last_scan_id = snap["last_scan_id"]
         self.last_t_ns = snap["last_t_ns"]
@@ -771,6 +833,24 @@ class PclTracker:
         self._counts_history = list(snap["counts_history"])
         self.metrics = Counter(snap["metrics"])
         return self
+
+
+_M = TypeVar("_M", bound=BaseModel)
+
+
+def _built(cls: type[_M], values: dict[str, Any]) -> _M:
+    """A model instance from values known to be valid, every field given (what ``model_construct`` does
+    without its per-field default handling: about 2.5 µs instead of 16 µs, and 150 µs with validation).
+
+    The core checks what validation would (finite values, symmetric covariances; shapes by construction);
+    a test checks that reports equal their validated round trip.
+    """
+    obj = cls.__new__(cls)
+    object.__setattr__(obj, "__dict__", values)
+    object.__setattr__(obj, "__pydantic_fields_set__", set(values))
+    object.__setattr__(obj, "__pydantic_extra__", None)
+    object.__setattr__(obj, "__pydantic_private__", None)
+    return obj
 
 
 def _json_dumps(obj: Any) -> str:

@@ -39,10 +39,15 @@ def _h_b_map(tx: FloatArray, pts: FloatArray) -> FloatArray:
 
 
 def bistatic_image(
-    x: FloatArray, P: FloatArray, tx: FloatArray, kind: str = "unscented", stats: CholeskyStats | None = None
+    x: FloatArray,
+    P: FloatArray,
+    tx: FloatArray,
+    kind: str = "unscented",
+    stats: CholeskyStats | None = None,
+    with_cross: bool = True,
 ) -> TransformResult:
     """z_b and its covariance of Cartesian states via the inverse UT (n = 6, 12 points) through h_b."""
-    return transform(kind, x, P, partial(_h_b_map, tx), AZ_INDEX, stats)
+    return transform(kind, x, P, partial(_h_b_map, tx), AZ_INDEX, stats, with_cross)
 
 
 @dataclass
@@ -70,7 +75,7 @@ def convert_plots(
     if kind == "unscented":
         X = sigma_points(z3, R3, stats)
         G, clamped, valid = h_a3(X, tx)
-        res = moments_from_points(z3, X, G)
+        res = moments_from_points(z3, X, G, with_cross=False)
         return ConvertedPlots(
             res.mean, res.cov, np.asarray(valid.all(axis=1), dtype=bool), np.asarray(clamped.any(axis=1), dtype=bool)
         )

@@ -5,6 +5,8 @@ from __future__ import annotations
 from functools import partial
 
 import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from .geometry import BoolArray, FloatArray, h_a6, wrap_angle
 from .ut import CholeskyStats, TransformResult, symmetrize, transform
@@ -43,6 +45,55 @@ def ring_ellipse_test(
     return passed, s, rho
 
 
+#: relative slack of the exact pruning bound (it only discards pairs that are clearly outside)
+_BOUND_SLACK = 1.0 + 1e-9
+
+
+def ring_gate_pairs(
+    zc1: FloatArray,
+    Rc1: FloatArray,
+    tau1: FloatArray,
+    zc2: FloatArray,
+    Rc2: FloatArray,
+    v_min: float,
+    v_max: float,
+    gamma3: float,
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Every (first plot i, second plot j) pair that passes :func:`ring_ellipse_test`, sorted by (i, j).
+
+    zc1 (C, 3), Rc1 (C, 3, 3), tau1 (C,) = t(2) - t(1) per first plot; zc2 (P, 3), Rc2 (P, 3, 3).
+    Exact pruning: outside the ring, z_c(2) - z_m = (d12 - R) e12 and rho >= (d12 - R)² / tr(R_c(1) + R_c(2))
+    (the largest eigenvalue is at most the trace), so a pair can pass only if
+    d12 <= R_max + sqrt(gamma3 tr(R_c(1))) + sqrt(gamma3 tr(R_c(2))). A k-d tree of the second plots gives
+    the pairs within that reach; the bound and then the full test decide the rest.
+    """
+    C, P = zc1.shape[0], zc2.shape[0]
+    empty = np.zeros(0, dtype=np.int64)
+    if C == 0 or P == 0:
+        return empty, empty
+    tr1 = np.trace(Rc1, axis1=-2, axis2=-1)
+    tr2 = np.trace(Rc2, axis1=-2, axis2=-1)
+    reach = v_max * tau1 + np.sqrt(gamma3 * _BOUND_SLACK * tr1) + float(np.sqrt(gamma3 * _BOUND_SLACK * tr2.max()))
+    found = cKDTree(zc2).query_ball_point(zc1, reach * (1.0 + 1e-9) + 1e-6)
+    counts = np.fromiter((len(f) for f in found), dtype=np.int64, count=C)
+    if counts.sum() == 0:
+        return empty, empty
+    ci = np.repeat(np.arange(C, dtype=np.int64), counts)
+    pj = np.fromiter((j for f in found for j in f), dtype=np.int64, count=int(counts.sum()))
+    tau = tau1[ci]
+    d12 = np.linalg.norm(zc2[pj] - zc1[ci], axis=-1)
+    R_min, R_max = v_min * tau, v_max * tau
+    miss = np.where(d12 > R_max, d12 - R_max, np.where(d12 < R_min, R_min - d12, 0.0))
+    keep = miss * miss <= gamma3 * _BOUND_SLACK * (tr1[ci] + tr2[pj])
+    ci, pj = ci[keep], pj[keep]
+    if ci.size == 0:
+        return empty, empty
+    passed, _, _ = ring_ellipse_test(zc1[ci], Rc1[ci], zc2[pj], Rc2[pj], tau1[ci], v_min, v_max, gamma3)
+    ci, pj = ci[passed], pj[passed]
+    order = np.lexsort((pj, ci))
+    return ci[order], pj[order]
+
+
 def two_plot_bistatic_estimate(
     z1: FloatArray, sig1: FloatArray, z2: FloatArray, sig2: FloatArray, tau2: FloatArray, init_cov: str = "full"
 ) -> tuple[FloatArray, FloatArray]:
@@ -79,7 +130,7 @@ def bistatic_to_cartesian(
     xb: FloatArray, Pb: FloatArray, tx: FloatArray, kind: str = "unscented", stats: CholeskyStats | None = None
 ) -> TransformResult:
     """UT (n = 6) of a bistatic state through h_a^(6) -> x_a, P_a (initialisation and BKF handover)."""
-    return transform(kind, xb, Pb, partial(_h_a6_map, tx), None, stats)
+    return transform(kind, xb, Pb, partial(_h_a6_map, tx), None, stats, with_cross=False)
 
 
 def ukf_only_init(

@@ -10,6 +10,7 @@ import math
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from operator import attrgetter
 
 import numpy as np
 
@@ -35,98 +36,136 @@ class NormalisedPlots:
         return len(self.ids)
 
 
-def _finite(v: float | None) -> bool:
-    return v is not None and isinstance(v, int | float) and math.isfinite(v)
+_FIELDS = (
+    "azimuth_deg",
+    "elevation_deg",
+    "bistatic_range_m",
+    "range_sum_m",
+    "delay_s",
+    "bistatic_velocity_mps",
+    "doppler_hz",
+    "sigma_rb_m",
+    "sigma_az_deg",
+    "sigma_el_deg",
+    "sigma_vb_mps",
+    "snr_db",
+)
+_AZ, _EL, _RB, _RSUM, _DELAY, _VB, _FD, _SIG0, _SNR = 0, 1, 2, 3, 4, 5, 6, 7, 11
+_get_fields = attrgetter(*_FIELDS)
+_TWO_PI = 2.0 * math.pi
+_DEG2RAD = math.pi / 180.0
+
+
+def _as_float(v: object) -> float:
+    """A plot value as a float; NaN for anything that is not a real number (only unvalidated input)."""
+    if isinstance(v, int | float):
+        return float(v)
+    return math.nan
+
+
+def _table(plots: Sequence[BistaticPlot]) -> tuple[FloatArray, BoolArray]:
+    """The numeric fields of every plot (n, 12) with NaN for absent values, and which were present."""
+    n = len(plots)
+    raw = np.empty((n, len(_FIELDS)), dtype=object)
+    if n:
+        raw[:] = [_get_fields(p) for p in plots]
+    present = np.not_equal(raw, None)  # type: ignore[call-overload]
+    filled = np.where(present, raw, np.nan)
+    try:
+        vals = filled.astype(np.float64)
+    except (TypeError, ValueError):
+        vals = np.vectorize(_as_float, otypes=[np.float64])(filled).reshape(n, len(_FIELDS))
+    return vals, np.asarray(present, dtype=bool)
 
 
 def normalise_plots(
     plots: Sequence[BistaticPlot], cfg: PclTrackerConfig, L_m: float, wavelength_m: float | None
 ) -> NormalisedPlots:
-    """Apply the §5.6 bad-input rules to every plot of a scan."""
+    """Apply the §5.6 bad-input rules to every plot of a scan (vectorised over the plots).
+
+    Order of the checks, as each plot meets them: a repeated plot_id (``duplicate_plot_id``), not exactly
+    one range and one velocity form (``missing_quantity``), a non-finite value (``nan``), Doppler without
+    a wavelength (``no_wavelength``); sigmas absent → default, non-finite/≤ 0/absurd → default and
+    ``sigma_defaulted``; r_b < 0 → clamped to 0 (``near_baseline``) within ``near_baseline_sigmas`` σ, else
+    ``rb_below_baseline``; limits → ``out_of_range``; r_b below ``rb_min_convertible_m`` → ``low_rb``.
+    """
     geo, lim, md = cfg.geometry, cfg.limits, cfg.measurement_defaults
-    defaults = cfg.default_sigmas()
+    defaults = np.array(cfg.default_sigmas())
+    default_native = np.array([md.sigma_rb_m, md.sigma_az_deg, md.sigma_el_deg, md.sigma_vb_mps])
+    scale = np.array([1.0, _DEG2RAD, _DEG2RAD, 1.0])
     rejected: Counter[str] = Counter()
     flagged: Counter[str] = Counter()
-    rows: list[tuple[str, list[float], list[float], float, bool]] = []
+    n = len(plots)
+    ids = [p.plot_id for p in plots]
+    V, present = _table(plots)
+
+    def reject(mask: BoolArray, reason: str) -> None:
+        k = int(mask.sum())
+        if k:
+            rejected[reason] += k
+
     seen: set[str] = set()
-    el_min, el_max = math.radians(lim.el_min_deg), math.radians(lim.el_max_deg)
-    for p in plots:
-        if p.plot_id in seen:
-            rejected["duplicate_plot_id"] += 1
-            continue
-        seen.add(p.plot_id)
-        # ---- range form -> r_b
-        forms = [p.bistatic_range_m, p.range_sum_m, p.delay_s]
-        vforms = [p.bistatic_velocity_mps, p.doppler_hz]
-        if sum(f is not None for f in forms) != 1 or sum(f is not None for f in vforms) != 1:
-            rejected["missing_quantity"] += 1
-            continue
-        if not all(_finite(v) for v in (*[f for f in forms if f is not None], *[f for f in vforms if f is not None])):
-            rejected["nan"] += 1
-            continue
-        if not (_finite(p.azimuth_deg) and _finite(p.elevation_deg)):
-            rejected["nan"] += 1
-            continue
-        if p.bistatic_range_m is not None:
-            r_b = float(p.bistatic_range_m)
-        elif p.range_sum_m is not None:
-            r_b = float(p.range_sum_m) - L_m
+    alive = np.ones(n, dtype=bool)
+    for i, pid in enumerate(ids):
+        if pid in seen:
+            alive[i] = False
+        seen.add(pid)
+    reject(~alive, "duplicate_plot_id")
+    forms_ok = (present[:, _RB : _DELAY + 1].sum(axis=1) == 1) & (present[:, _VB : _FD + 1].sum(axis=1) == 1)
+    reject(alive & ~forms_ok, "missing_quantity")
+    alive &= forms_ok
+    rng_val = np.where(present[:, _RB], V[:, _RB], np.where(present[:, _RSUM], V[:, _RSUM], V[:, _DELAY]))
+    vel_val = np.where(present[:, _VB], V[:, _VB], V[:, _FD])
+    finite = np.isfinite(rng_val) & np.isfinite(vel_val) & np.isfinite(V[:, _AZ]) & np.isfinite(V[:, _EL])
+    reject(alive & ~finite, "nan")
+    alive &= finite
+    with np.errstate(invalid="ignore"):
+        r_b = np.where(
+            present[:, _RB], V[:, _RB], np.where(present[:, _RSUM], V[:, _RSUM] - L_m, geo.c_mps * V[:, _DELAY])
+        )
+        if wavelength_m is None:
+            no_wl = alive & ~present[:, _VB]
+            reject(no_wl, "no_wavelength")
+            alive &= ~no_wl
+            v_b = V[:, _VB].copy()
         else:
-            r_b = geo.c_mps * float(p.delay_s)  # type: ignore[arg-type]
-        if p.bistatic_velocity_mps is not None:
-            v_b = float(p.bistatic_velocity_mps)
-        else:
-            if wavelength_m is None:
-                rejected["no_wavelength"] += 1
-                continue
-            v_b = geo.doppler_sign * wavelength_m * float(p.doppler_hz)  # type: ignore[arg-type]
-        # ---- sigmas: absent, non-finite, <= 0 or absurd -> default (flag)
-        given = [p.sigma_rb_m, p.sigma_az_deg, p.sigma_el_deg, p.sigma_vb_mps]
-        scale = [1.0, math.pi / 180.0, math.pi / 180.0, 1.0]
-        default_native = [md.sigma_rb_m, md.sigma_az_deg, md.sigma_el_deg, md.sigma_vb_mps]
-        sig: list[float] = []
-        defaulted = False
-        for g, s, dflt_native, dflt in zip(given, scale, default_native, defaults, strict=True):
-            if g is None:
-                sig.append(dflt)
-                continue
-            if not _finite(g) or g <= 0.0 or g > md.absurd_factor * dflt_native:
-                defaulted = True
-                sig.append(dflt)
-            else:
-                sig.append(float(g) * s)
-        if defaulted:
-            flagged["sigma_defaulted"] += 1
-        # ---- impossible geometry and limits
-        if r_b < 0.0:
-            if r_b >= -lim.near_baseline_sigmas * sig[0]:
-                r_b = 0.0
-                flagged["near_baseline"] += 1
-            else:
-                rejected["rb_below_baseline"] += 1
-                continue
-        el = math.radians(float(p.elevation_deg))
-        if r_b > lim.rb_max_m or abs(v_b) > lim.vb_max_abs_mps or not (el_min <= el <= el_max):
-            rejected["out_of_range"] += 1
-            continue
-        az = math.pi - math.fmod(math.pi - math.radians(float(p.azimuth_deg)), 2.0 * math.pi)
-        if az <= -math.pi:
-            az += 2.0 * math.pi
-        elif az > math.pi:
-            az -= 2.0 * math.pi
-        low = r_b < lim.rb_min_convertible_m
-        if low:
-            flagged["low_rb"] += 1
-        snr = float(p.snr_db) if p.snr_db is not None and _finite(p.snr_db) else math.nan
-        rows.append((p.plot_id, [r_b, az, el, v_b], sig, snr, low))
-    rows.sort(key=lambda r: r[0])
-    n = len(rows)
+            v_b = np.where(present[:, _VB], V[:, _VB], (geo.doppler_sign * wavelength_m) * V[:, _FD])
+        # sigmas: absent -> default; non-finite, <= 0 or absurd -> default and flagged
+        g = V[:, _SIG0 : _SIG0 + 4]
+        given = present[:, _SIG0 : _SIG0 + 4]
+        bad = given & ~(np.isfinite(g) & (g > 0.0) & (g <= md.absurd_factor * default_native))
+        use_default = ~given | bad
+        sig = np.where(use_default, defaults, g * scale)
+        k = int((alive & bad.any(axis=1)).sum())
+        if k:
+            flagged["sigma_defaulted"] += k
+        # impossible geometry and limits
+        neg = alive & (r_b < 0.0)
+        near = neg & (r_b >= -lim.near_baseline_sigmas * sig[:, 0])
+        if near.any():
+            flagged["near_baseline"] += int(near.sum())
+            r_b = np.where(near, 0.0, r_b)
+        reject(neg & ~near, "rb_below_baseline")
+        alive &= ~(neg & ~near)
+        el = V[:, _EL] * _DEG2RAD
+        out = (r_b > lim.rb_max_m) | (np.abs(v_b) > lim.vb_max_abs_mps)
+        out |= ~((math.radians(lim.el_min_deg) <= el) & (el <= math.radians(lim.el_max_deg)))
+        reject(alive & out, "out_of_range")
+        alive &= ~out
+        az = math.pi - np.fmod(math.pi - V[:, _AZ] * _DEG2RAD, _TWO_PI)
+        az = np.where(az <= -math.pi, az + _TWO_PI, np.where(az > math.pi, az - _TWO_PI, az))
+        low = alive & (r_b < lim.rb_min_convertible_m)
+        if low.any():
+            flagged["low_rb"] += int(low.sum())
+    keep = np.flatnonzero(alive)
+    keep = keep[sorted(range(keep.size), key=lambda k: ids[keep[k]])]
+    snr = V[keep, _SNR]
     return NormalisedPlots(
-        ids=[r[0] for r in rows],
-        z=np.array([r[1] for r in rows], dtype=np.float64).reshape(n, 4),
-        sig=np.array([r[2] for r in rows], dtype=np.float64).reshape(n, 4),
-        snr_db=np.array([r[3] for r in rows], dtype=np.float64).reshape(n),
-        low_rb=np.array([r[4] for r in rows], dtype=bool).reshape(n),
+        ids=[ids[i] for i in keep],
+        z=np.stack([r_b[keep], az[keep], el[keep], v_b[keep]], axis=-1).reshape(keep.size, 4),
+        sig=sig[keep].reshape(keep.size, 4),
+        snr_db=np.where(np.isfinite(snr), snr, np.nan),
+        low_rb=low[keep],
         rejected=rejected,
         flagged=flagged,
     )

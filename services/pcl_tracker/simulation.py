@@ -108,7 +108,8 @@ class PclScenario:
     drop_scans: tuple[int, ...] = ()  # 1-based scan numbers whose target plots are removed (E3, E4)
 
     def times_s(self) -> FloatArray:
-        return np.arange(self.n_scans, dtype=np.float64) * self.scan_period_s
+        """Scan times on the scenario clock (s): t0 + k * period (the targets' times are on this clock too)."""
+        return self.t0_ns * 1e-9 + np.arange(self.n_scans, dtype=np.float64) * self.scan_period_s
 
     def stamp_ns(self, k: int) -> int:
         return self.t0_ns + round(k * self.scan_period_s * 1e9)
@@ -219,8 +220,8 @@ def _plot(sc: PclScenario, plot_id: str, z: FloatArray, L: float, snr_db: float 
     )
 
 
-def simulate(sc: PclScenario, rng: np.random.Generator) -> SimRun:
-    """Simulate one run of a scenario."""
+def simulate(sc: PclScenario, rng: np.random.Generator, *, frame_id: str = "pcl_enu", source: str = "sim") -> SimRun:
+    """Simulate one run of a scenario (``frame_id`` and ``source`` go into every header)."""
     tx = np.asarray(sc.tx_position_enu_m, dtype=np.float64)
     L = float(np.linalg.norm(tx))
     times = sc.times_s()
@@ -233,7 +234,7 @@ def simulate(sc: PclScenario, rng: np.random.Generator) -> SimRun:
     cl = sc.clutter
     for k, t in enumerate(times):
         stamp = sc.stamp_ns(k)
-        hdr = Header(stamp_ns=stamp, frame_id="pcl_enu", source="sim")
+        hdr = Header(stamp_ns=stamp, frame_id=frame_id, source=source)
         zs: list[tuple[FloatArray, int, float]] = []
         tr_msgs: list[Truth] = []
         for i, tgt in enumerate(sc.targets):

@@ -75,7 +75,11 @@ def robust_cholesky(P: FloatArray, stats: CholeskyStats | None = None) -> FloatA
 
 @dataclass
 class TransformResult:
-    """Mean (B, k), covariance (B, k, k) and input-output cross-covariance (B, n, k) of y = f(x)."""
+    """Mean (B, k), covariance (B, k, k) and input-output cross-covariance (B, n, k) of y = f(x).
+
+    ``cross`` is empty, shape (B, 0, 0), when the caller did not ask for it (``with_cross=False``): only the
+    optional 4-D bistatic UKF update uses it, and leaving it out saves a third of the moment computation.
+    """
 
     mean: FloatArray
     cov: FloatArray
@@ -96,17 +100,23 @@ def unscented_transform(
     f: PointMap,
     az_index: int | None = None,
     stats: CholeskyStats | None = None,
+    with_cross: bool = True,
 ) -> TransformResult:
     """Paper UT of a batch: m (B, n), P (B, n, n) through f; weights 1/(2n), no central point."""
     X = sigma_points(m, P, stats)
     if az_index is None:
-        return moments_from_points(m, X, f(X))
+        return moments_from_points(m, X, f(X), with_cross=with_cross)
     G = f(np.concatenate([X, m[:, None, :]], axis=1))  # one call: the 2n points and the mean (azimuth ref)
-    return moments_from_points(m, X, G[:, :-1, :], az_index, G[:, -1, az_index])
+    return moments_from_points(m, X, G[:, :-1, :], az_index, G[:, -1, az_index], with_cross)
 
 
 def moments_from_points(
-    m: FloatArray, X: FloatArray, G: FloatArray, az_index: int | None = None, az_ref: FloatArray | None = None
+    m: FloatArray,
+    X: FloatArray,
+    G: FloatArray,
+    az_index: int | None = None,
+    az_ref: FloatArray | None = None,
+    with_cross: bool = True,
 ) -> TransformResult:
     """Equal-weight moments of propagated sigma points G = f(X) (B, 2n, k) around the input mean m.
 
@@ -119,9 +129,9 @@ def moments_from_points(
         G[..., az_index] = ref[:, None] + wrap_angle(G[..., az_index] - ref[:, None])
     g = G.mean(axis=1)
     dG = G - g[:, None, :]
-    dX = X - m[:, None, :]
     cov = symmetrize(np.einsum("bik,bil->bkl", dG, dG) / (2 * n))
-    cross = np.einsum("bik,bil->bkl", dX, dG) / (2 * n)
+    no_cross = np.zeros((G.shape[0], 0, 0))
+    cross = np.einsum("bik,bil->bkl", X - m[:, None, :], dG) / (2 * n) if with_cross else no_cross
     if az_index is not None:
         g[:, az_index] = wrap_angle(g[:, az_index])
     return TransformResult(g, cov, cross)
@@ -158,10 +168,11 @@ def transform(
     f: PointMap,
     az_index: int | None = None,
     stats: CholeskyStats | None = None,
+    with_cross: bool = True,
 ) -> TransformResult:
     """Dispatch on the configured transform: ``"unscented"`` (paper) or ``"linearized"``."""
     if kind == "unscented":
-        return unscented_transform(m, P, f, az_index, stats)
+        return unscented_transform(m, P, f, az_index, stats, with_cross)
     if kind == "linearized":
         return linearized_transform(m, P, f, az_index)
     raise ValueError(f"unknown transform {kind!r}")

@@ -1,0 +1,413 @@
+"""The PCL tracker service: one instance per receiver–illuminator pair (digest 003 §5), a thin adapter.
+
+decode → validate → :class:`~services.pcl_tracker.core.PclTracker` → encode. Keys (``<rx>``/``<tx>`` are
+the configured ``receiver_id`` / ``illuminator_id``):
+
+* in: ``fixstream/sensor/<rx>/pcl/<tx>``, :class:`~schemas.radar.BistaticScan` (one per scan, empty scans too)
+  and :class:`~schemas.radar.BistaticConfigUpdate` (same key, so geometry changes keep their order);
+* out: ``fixstream/track/pcl/<rx>/<tx>``, one :class:`~schemas.pcl_tracker.PclScanReport` per processed scan;
+* ``fixstream/scenario/**``: the player's markers (the run ends when every scan the end marker announces
+  for our key has arrived);
+* ``fixstream/diag/pcl_tracker/<instance>``, ``fixstream/status/pcl_tracker/<instance>`` and the liveliness
+  token ``fixstream/alive/pcl_tracker/<instance>`` (service base).
+
+Bad input (digest §5.6, architecture rule 5) never stops the service and never reaches the estimate:
+
+* a message that cannot be decoded, has the wrong type or pair, is a duplicate, late, or goes back in time
+  is rejected as a whole (the base counts it and publishes a diagnostic with the core's reason);
+* a scan whose *plots* fail validation (NaN/inf, elevation beyond ±90°, not exactly one range and one
+  velocity form) keeps its valid plots: the bad ones are dropped and reported (reason ``nan``,
+  ``out_of_range``, ``missing_quantity``, ``invalid_plot``) exactly like the plots the core refuses
+  (``rb_below_baseline``, ``duplicate_plot_id``, ``no_wavelength``, ...), and the report counts them in
+  ``n_plots_in`` / ``n_plots_rejected``;
+* plots kept but unusual (``low_rb``, ``near_baseline``, ``sigma_defaulted``) and scan conditions
+  (``clutter_burst``, ``gap_coast``, ``gap_reset``, ``capacity``, ``config_reset``,
+  ``time_not_monotonic`` of a buffered scan, ``out_of_order`` of a scan buffered for reordering,
+  ``conversion_failed``, ``cholesky_fallback``) are reported as diagnostics too, level ``info`` or ``warning``.
+
+Deterministic: outputs depend only on the order of the inputs on the input key (time comes from the
+stamps). The end of a player run flushes the reorder buffer and then starts a fresh tracker for the next
+run (track ids keep increasing, so an id is never reused within an instance). Zenoh orders each
+subscription's samples but not two subscriptions against each other, so the end marker can overtake the
+last scans; the run therefore ends once the number of messages the marker announces for our key has
+arrived (or at the next start marker, or ``END_WAIT_S`` of wall time later if some never arrive).
+"""
+
+from __future__ import annotations
+
+import gc
+import json
+import logging
+import math
+import os
+import time
+from collections import Counter
+from collections.abc import Iterable
+from typing import Any, ClassVar
+
+from pydantic import ValidationError
+
+from schemas import Message, ScenarioMarker
+from schemas.pcl_tracker import PclScanReport
+from schemas.radar import BistaticConfigUpdate, BistaticPlot, BistaticScan
+from shared import codec, keys
+from shared.service import InputRejected, Output, Service, Subscription
+from shared.settings import ZenohSettings
+
+from .core import PclTracker
+from .settings import PclTrackerSettings, PclTrackerSettingsBase, to_config
+
+log = logging.getLogger("fixstream.pcl_tracker")
+
+#: plot-level reasons (count per plot): a plot refused or flagged inside an accepted scan
+_PLOT_FLAGS_INFO = {"low_rb", "near_baseline", "sigma_defaulted"}
+#: scan flags already reported another way (a rejected message, or a plot flag)
+_FLAGS_REPORTED_ELSEWHERE = {"late_scan_dropped", "sigma_defaulted", "near_baseline"}
+_FLAGS_INFO = {"gap_coast"}
+#: wall time an end marker waits for the scans it announced before the run is finished anyway, s
+END_WAIT_S = 5.0
+
+
+def input_key(receiver_id: str, illuminator_id: str) -> str:
+    return keys.sensor(receiver_id, "pcl", illuminator_id)
+
+
+def output_key(receiver_id: str, illuminator_id: str) -> str:
+    return keys.track("pcl", receiver_id, illuminator_id)
+
+
+def _plot_reason(exc: ValidationError) -> str:
+    """The reason a plot failed validation: ``nan``, ``out_of_range``, ``missing_quantity``, ``invalid_plot``."""
+    kinds = {str(e.get("type", "")) for e in exc.errors(include_url=False)}
+    if "finite_number" in kinds:
+        return "nan"
+    if kinds & {"greater_than_equal", "less_than_equal", "greater_than", "less_than"}:
+        return "out_of_range"
+    if "value_error" in kinds:
+        return "missing_quantity"
+    return "invalid_plot"
+
+
+_SIGMAS = ("sigma_rb_m", "sigma_az_deg", "sigma_el_deg", "sigma_vb_mps")
+
+
+def _sanitised(plot: Any) -> dict[str, Any] | None:
+    """A plot whose non-finite *sigmas* are passed on as invalid (-1) and non-finite SNR as absent, or None.
+
+    Digest §5.6: a NaN, non-positive or absurd sigma is replaced by the configured default and flagged
+    ``sigma_defaulted`` (the core does that for -1); it does not make the plot unusable. The wire format
+    refuses NaN, so this is the one place that turns it into a value the core treats as invalid.
+    """
+    if not isinstance(plot, dict):
+        return None
+    bad = [k for k in _SIGMAS if isinstance(plot.get(k), float) and not math.isfinite(plot[k])]
+    snr = plot.get("snr_db")
+    bad_snr = isinstance(snr, float) and not math.isfinite(snr)
+    if not bad and not bad_snr:
+        return None
+    fixed = dict(plot)
+    for k in bad:
+        fixed[k] = -1.0
+    if bad_snr:
+        fixed["snr_db"] = None
+    return fixed
+
+
+class PclTrackerService(Service):
+    """Runs one :class:`PclTracker` (one receiver–illuminator pair) on the stream; see the module doc."""
+
+    name: ClassVar[str] = "pcl_tracker"
+
+    def __init__(self, settings: PclTrackerSettingsBase, zenoh_settings: ZenohSettings | None = None) -> None:
+        super().__init__(settings, zenoh_settings)
+        self.config = to_config(settings)
+        self.snapshot_file = settings.snapshot_file
+        self.snapshot_every = settings.snapshot_every_scans
+        geo = self.config.geometry
+        self.in_key = input_key(geo.receiver_id, geo.illuminator_id)
+        self.out_key = output_key(geo.receiver_id, geo.illuminator_id)
+        self.core = self._restore() or PclTracker(self.config)
+        #: plots received in accepted messages (including the ones dropped at decoding)
+        self.plots_received = 0
+        #: plots refused, by reason (decoding and core)
+        self.plots_rejected: Counter[str] = Counter()
+        #: every scan-level diagnostic reason (plot rejections, plot flags, scan flags), running counts
+        self.scan_events: Counter[str] = Counter()
+        self.reports_published = 0
+        self.scans_since_snapshot = 0
+        self.last_scan_ms: float | None = None
+        self.max_scan_ms = 0.0
+        #: wall time of the core per input scan (a health figure, never used in estimation)
+        self.total_scan_ms = 0.0
+        self.total_scan_cpu_ms = 0.0
+        self.timed_scans = 0
+        self.resets = 0
+        #: messages received on the input key in this run, and (published count, wall time) of an end marker
+        self._run_received = 0
+        self._pending_end: tuple[int, float] | None = None
+        #: plots refused at decoding, per scan id, until that scan's report is published
+        self._dropped_by_scan: dict[int, Counter[str]] = {}
+
+    # ----- Service hooks ------------------------------------------------------------------------
+    def subscriptions(self) -> list[Subscription]:
+        return [
+            Subscription(self.in_key, raw_handler=self._on_sample),
+            Subscription(f"{keys.ROOT}/scenario/**", raw_handler=self._on_marker),
+        ]
+
+    def on_scenario_end(self, marker: ScenarioMarker) -> Iterable[Output]:
+        """The player's end marker: finish the run once every scan it published on our key has arrived."""
+        self._pending_end = (marker.published.get(self.in_key, 0), time.monotonic())
+        return self._maybe_finish_run()
+
+    def on_idle(self) -> Iterable[Output]:
+        """Finish a run whose end marker came but some of its scans never did (lost, or started late)."""
+        if self._pending_end is not None and time.monotonic() - self._pending_end[1] > END_WAIT_S:
+            log.warning(
+                "%s: end of run with %d of %d scans received", self.source, self._run_received, self._pending_end[0]
+            )
+            return self._finish_run()
+        return ()
+
+    def _on_marker(self, key: str, payload: bytes, encoding: str) -> list[Output]:
+        marker = codec.decode(payload, encoding)
+        if not isinstance(marker, ScenarioMarker):
+            raise InputRejected("unexpected_type", f"{type(marker).__name__} on {key}; expects ScenarioMarker")
+        if marker.event == "end":
+            return list(self.on_scenario_end(marker))
+        # a new run starts: a previous run still waiting for scans that never came is finished now
+        return self._finish_run() if self._pending_end is not None else []
+
+    def _maybe_finish_run(self) -> list[Output]:
+        if self._pending_end is None or self._run_received < self._pending_end[0]:
+            return []
+        return self._finish_run()
+
+    def _finish_run(self) -> list[Output]:
+        """Flush the reorder buffer, then start a fresh tracker (ids keep increasing) for the next run.
+
+        Zenoh delivers each subscription's samples in order, but not the two subscriptions relative to
+        each other: the end marker may be queued before the last scans. The marker says how many messages
+        were published on our key, so the run ends when that many have arrived (see on_scenario_end).
+        """
+        self._pending_end = None
+        self._run_received = 0
+        outputs = self._outputs(self.in_key, self.core.flush())
+        next_id = self.core.next_track_id
+        self.core = PclTracker(self.config)
+        self.core.next_track_id = next_id
+        self._dropped_by_scan.clear()
+        self.resets += 1
+        return outputs
+
+    def on_stop(self) -> None:
+        self._save_snapshot()
+
+    def status_extra(self) -> dict[str, Any]:
+        core = self.core
+        return {
+            "pair": {"receiver_id": core.receiver_id, "illuminator_id": core.illuminator_id},
+            "in_key": self.in_key,
+            "out_key": self.out_key,
+            "scans_processed": core.metrics["scans"],
+            "reports_published": self.reports_published,
+            "buffered_scans": len(core.buffered_scan_ids),
+            "last_scan_id": core.last_scan_id,
+            "live_tracks": len(core.tracks),
+            "tentative": sum(1 for t in core.tracks.values() if t.status == "TENTATIVE"),
+            "confirmed": sum(1 for t in core.tracks.values() if t.status == "CONFIRMED"),
+            "candidates": len(core.candidates),
+            "next_track_id": core.next_track_id,
+            "plots_received": self.plots_received,
+            "plots_rejected": sum(self.plots_rejected.values()),
+            "plots_rejected_by_reason": dict(self.plots_rejected),
+            "scan_events": dict(self.scan_events),
+            "core_metrics": dict(core.metrics),
+            "last_scan_ms": self.last_scan_ms,
+            "max_scan_ms": round(self.max_scan_ms, 3),
+            "mean_scan_ms": round(self.total_scan_ms / self.timed_scans, 3) if self.timed_scans else None,
+            "mean_scan_cpu_ms": round(self.total_scan_cpu_ms / self.timed_scans, 3) if self.timed_scans else None,
+            "tracker_resets": self.resets,
+        }
+
+    # ----- sample path --------------------------------------------------------------------------
+    def _on_sample(self, key: str, payload: bytes, encoding: str) -> list[Output]:
+        self._run_received += 1
+        try:
+            outputs = self._on_input(key, payload, encoding)
+        except Exception:
+            for out in self._maybe_finish_run():  # the run's last message was refused: the run still ends
+                self.publish(out.key, out.msg)
+            raise
+        return outputs + self._maybe_finish_run()
+
+    def _on_input(self, key: str, payload: bytes, encoding: str) -> list[Output]:
+        msg, dropped = self._decode(payload, encoding)
+        if not isinstance(msg, BistaticScan | BistaticConfigUpdate):
+            raise InputRejected("unexpected_type", f"{type(msg).__name__} on {key}; expects BistaticScan")
+        scan = msg if isinstance(msg, BistaticScan) else None
+        last = self.core.last_scan_id
+        t0, c0 = time.perf_counter(), time.thread_time()
+        reports = self.core.step(msg)  # InputRejected: the whole message is refused (the base reports it)
+        if scan is not None:
+            self.plots_received += len(scan.plots) + sum(dropped.values())
+            if dropped:
+                self._dropped_by_scan[scan.scan_id] = dropped
+            ms = (time.perf_counter() - t0) * 1e3
+            self.last_scan_ms = round(ms, 3)
+            self.max_scan_ms = max(self.max_scan_ms, ms)
+            self.total_scan_ms += ms
+            self.total_scan_cpu_ms += (time.thread_time() - c0) * 1e3
+            self.timed_scans += 1
+            if last is not None and scan.scan_id > last + 1 and scan.scan_id in self.core.buffered_scan_ids:
+                detail = f"scan {scan.scan_id} arrived after {last}: held for reordering (or counted as a gap)"
+                self._event(key, "out_of_order", detail, scan.header.stamp_ns, "info")
+        return self._outputs(key, reports)
+
+    def _decode(self, payload: bytes, encoding: str) -> tuple[Message, Counter[str]]:
+        """Decode strictly; a scan whose only problems are in some plots loses those plots, not the scan."""
+        try:
+            return codec.decode(payload, encoding), Counter()
+        except codec.DecodeError as exc:
+            if codec.model_for_encoding(encoding) is not BistaticScan or exc.reason in (
+                "bad_msgpack",
+                "trailing_bytes",
+            ):
+                raise
+            obj = codec.unpack(payload)
+            plots = obj.get("plots") if isinstance(obj, dict) else None
+            if not isinstance(plots, list):
+                raise
+            good: list[Any] = []
+            dropped: Counter[str] = Counter()
+            for p in plots:
+                try:
+                    BistaticPlot.model_validate(p, strict=True)
+                    good.append(p)
+                    continue
+                except ValidationError as pexc:
+                    err = pexc
+                fixed = _sanitised(p)
+                if fixed is not None:
+                    try:
+                        BistaticPlot.model_validate(fixed, strict=True)
+                        good.append(fixed)
+                        continue
+                    except ValidationError as pexc:
+                        err = pexc
+                dropped[_plot_reason(err)] += 1
+            if not dropped and good == plots:
+                raise
+            return codec.validate(BistaticScan, {**obj, "plots": good}), dropped
+
+    def _outputs(self, key: str, reports: list[PclScanReport]) -> list[Output]:
+        outputs: list[Output] = []
+        for rep in reports:
+            dropped = self._dropped_by_scan.pop(rep.scan_id, None) if rep.trigger == "scan" else None
+            if dropped:  # plots refused at decoding count in their scan's report like the core's rejections
+                rejected = Counter(rep.n_plots_rejected)
+                rejected.update(dropped)
+                rep = rep.model_copy(
+                    update={"n_plots_in": rep.n_plots_in + sum(dropped.values()), "n_plots_rejected": dict(rejected)}
+                )
+            self._diagnose(key, rep)
+            outputs.append(Output(self.out_key, rep))
+        last = self.core.last_scan_id
+        if last is not None and self._dropped_by_scan:  # buffered scans the core dropped after all
+            for sid in [s for s in self._dropped_by_scan if s <= last]:
+                for reason, n in self._dropped_by_scan.pop(sid).items():
+                    self._plot_rejections(key, reason, n, sid, 0)
+        self.reports_published += len(outputs)
+        if outputs and self.snapshot_every:
+            self.scans_since_snapshot += len(outputs)
+            if self.scans_since_snapshot >= self.snapshot_every:
+                self._save_snapshot()
+        return outputs
+
+    # ----- diagnostics --------------------------------------------------------------------------
+    def _event(self, key: str, reason: str, detail: str, stamp_ns: int, level: str, n: int = 1) -> None:
+        self.scan_events[reason] += n
+        self.report(
+            key,
+            reason,
+            detail,
+            count=self.scan_events[reason],
+            counts=dict(self.scan_events),
+            level=level,  # type: ignore[arg-type]
+            stamp_ns=stamp_ns,
+        )
+
+    def _plot_rejections(self, key: str, reason: str, n: int, scan_id: int, stamp_ns: int) -> None:
+        self.plots_rejected[reason] += n
+        self._event(key, reason, f"scan {scan_id}: {n} plot(s) rejected", stamp_ns, "warning", n)
+
+    def _diagnose(self, key: str, rep: PclScanReport) -> None:
+        stamp = rep.header.stamp_ns
+        sid = rep.scan_id
+        for reason, n in rep.n_plots_rejected.items():
+            self._plot_rejections(key, reason, n, sid, stamp)
+        for flag, n in rep.n_plots_flagged.items():
+            level = "info" if flag in _PLOT_FLAGS_INFO else "warning"
+            self._event(key, flag, f"scan {sid}: {n} plot(s) {flag}", stamp, level, n)
+        for flag in rep.flags:
+            if flag in _FLAGS_REPORTED_ELSEWHERE:
+                continue
+            detail = f"scan {sid}: {flag}"
+            if flag == "gap_coast":
+                detail += f" ({rep.gap_scans} missing scan(s) counted as misses)"
+            elif flag == "clutter_burst":
+                detail += f" ({rep.n_plots_in} plots: association only, no initiation)"
+            self._event(key, flag, detail, stamp, "info" if flag in _FLAGS_INFO else "warning")
+        failed = [t.track_id for t in rep.tracks if "conversion_failed" in t.flags]
+        if failed:
+            self._event(key, "conversion_failed", f"scan {sid}: tracks {failed} not updated", stamp, "warning")
+        if rep.n_cholesky_fallbacks:
+            self._event(key, "cholesky_fallback", f"scan {sid}: {rep.n_cholesky_fallbacks}", stamp, "info")
+
+    # ----- snapshot -----------------------------------------------------------------------------
+    def _restore(self) -> PclTracker | None:
+        path = self.snapshot_file
+        if path is None or not path.exists():
+            return None
+        try:
+            snap = json.loads(path.read_text())
+            core = PclTracker.restore(snap)
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            log.warning("%s: snapshot %s not usable (%s): starting fresh", self.source, path, exc)
+            return None
+        if core.config != self.config:
+            log.warning("%s: snapshot %s has another configuration: starting fresh", self.source, path)
+            return None
+        log.info(
+            "%s: restored %d tracks from %s (last scan %s)", self.source, len(core.tracks), path, core.last_scan_id
+        )
+        return core
+
+    def _save_snapshot(self) -> None:
+        self.scans_since_snapshot = 0
+        path = self.snapshot_file
+        if path is None:
+            return
+        tmp = path.with_name(path.name + ".tmp")
+        try:
+            tmp.write_text(json.dumps(self.core.snapshot(), allow_nan=False))
+            os.replace(tmp, path)
+        except (OSError, ValueError) as exc:
+            log.error("%s: could not write the snapshot %s: %s", self.source, path, exc)
+
+
+def from_environment() -> PclTrackerService:
+    """The service configured from ``FIXSTREAM_PCL_TRACKER_*`` (and the optional config file)."""
+    settings = PclTrackerSettings.load()
+    assert isinstance(settings, PclTrackerSettingsBase)
+    return PclTrackerService(settings)
+
+
+def build() -> PclTrackerService:
+    """The service as ``fixstream run pcl_tracker`` starts it (:func:`from_environment`)."""
+    service = from_environment()
+    # Everything allocated so far lives for the whole process: keep the cyclic collector from re-scanning it
+    # at every full collection (one scan of many plots allocates enough to trigger several).
+    gc.collect()
+    gc.freeze()
+    return service

@@ -1,0 +1,208 @@
+"""PCL tracker over real processes and a real Zenoh router.
+
+* E1 (digest 003 §4.4) through ``fixstream up router recorder player pcl_tracker-rx1-fm`` (the repository's
+  compose.yaml, the paper scenario file, rate 0): the scan reports in the MCAP equal, message for message
+  (header included), what the service built the same way produces offline from the same scenario events
+  framed by the player's start and end markers; and the run meets E1's criteria.
+* The bad-input stream of ``test_pcl_tracker_service.py`` published raw over a router into
+  ``fixstream run pcl_tracker``: every case is diagnosed with its reason, the process stays up, its status
+  counters add up, and the tracks equal the offline run's (which equal the clean stream's).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import threading
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+import zenoh
+from conftest import REPO, fixstream_cmd, service_env, wait_until
+from test_pcl_tracker_service import (
+    IN_KEY,
+    OUT_KEY,
+    clean_scans,
+    dirty_stream,
+    make_service,
+    run_items,
+    track_view,
+)
+
+from schemas import Message
+from schemas.pcl_tracker import PclScanReport
+from services.pcl_tracker import service as service_mod
+from services.player.scenario import load_scenario
+from services.player.timeline import marker, scenario_events
+from shared import codec, keys
+from shared.mcap_io import decode_record, iter_records, recording_files
+from shared.session import open_session
+from shared.settings import ZenohSettings
+
+pytestmark = pytest.mark.e2e
+
+SCENARIO = REPO / "scenarios" / "pcl_tracker_paper.yaml"
+STACK_SERVICE = "pcl_tracker-rx1-fm"
+
+
+def compose_environment(service: str) -> dict[str, str]:
+    spec = yaml.safe_load((REPO / "compose.yaml").read_text())["services"][service]
+    return {k: str(v) for k, v in spec["environment"].items() if k.startswith("FIXSTREAM_PCL_TRACKER_")}
+
+
+def offline_outputs(
+    monkeypatch: pytest.MonkeyPatch, scenario_path: Path, stack_service: str
+) -> dict[str, list[Message]]:
+    """What a stack service publishes for the scenario, per key, computed without Zenoh."""
+    for k in list(os.environ):
+        if k.startswith("FIXSTREAM_"):
+            monkeypatch.delenv(k)
+    for k, v in compose_environment(stack_service).items():
+        monkeypatch.setenv(k, v)
+    svc = service_mod.from_environment()  # what build() does, without freezing this process's GC
+    scenario = load_scenario(scenario_path)
+    events = scenario_events(scenario)
+    published: dict[str, int] = {}
+    for ev in events:
+        published[ev.key] = published.get(ev.key, 0) + 1
+    scenario_key = keys.scenario(scenario.name)
+    framed = [
+        (scenario_key, marker(scenario, scenario.seed, "start", 0, 0)),
+        *((ev.key, ev.msg) for ev in events),
+        (scenario_key, marker(scenario, scenario.seed, "end", events[-1].stamp_ns, 1, published=published)),
+    ]
+    subscribed = [zenoh.KeyExpr(s.key_expr) for s in svc.subscriptions()]
+    delivered = [(k, m) for k, m in framed if any(ke.intersects(zenoh.KeyExpr(k)) for ke in subscribed)]
+    out: dict[str, list[Message]] = {}
+    for o in svc.run_offline(delivered):
+        out.setdefault(o.key, []).append(o.msg)
+    return out
+
+
+def run_stack(tmp_path: Path, scenario: Path, services: list[str]) -> tuple[str, Path]:
+    recordings = tmp_path / "recordings"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("FIXSTREAM_")}
+    env.update({"FIXSTREAM_SCENARIO": str(scenario), "FIXSTREAM_RATE": "0"})
+    cmd = ["up", "-f", str(REPO / "compose.yaml"), "--recordings", str(recordings), "--no-color"]
+    done = subprocess.run(
+        fixstream_cmd(*cmd, "router", "recorder", "player", *services),
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
+    out = done.stdout + done.stderr
+    assert done.returncode == 0, out[-4000:]
+    return out, recordings
+
+
+def recorded_by_topic(recordings: Path) -> dict[str, list[Message]]:
+    by_topic: dict[str, list[Message]] = {}
+    for f in recording_files(recordings):
+        for rec in iter_records(f):
+            by_topic.setdefault(rec.topic, []).append(decode_record(rec))
+    return by_topic
+
+
+def test_e1_through_the_stack_equals_the_offline_service(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    out, recordings = run_stack(tmp_path, SCENARIO, [STACK_SERVICE])
+    assert f"[up] {STACK_SERVICE} ready: fixstream/alive/pcl_tracker/rx1-fm" in out
+    by_topic = recorded_by_topic(recordings)
+    recorded = by_topic[OUT_KEY]
+    offline = offline_outputs(monkeypatch, SCENARIO, STACK_SERVICE)
+    assert set(offline) == {OUT_KEY}  # a clean stream: no diagnostic offline ...
+    assert not [t for t in by_topic if t.startswith("fixstream/diag/")]  # ... nor in the stack
+    assert len(recorded) == 51
+    assert recorded == offline[OUT_KEY]  # message for message, header (source, seq, stamp) included
+
+    # digest E1 on this run: one id, created at scan 2 (t = 3 s) CONFIRMED, never dropped, < 250 m at the end
+    reports = [m for m in recorded if isinstance(m, PclScanReport)]
+    assert len(reports) == 51
+    assert {t.track_id for r in reports for t in r.tracks} == {1}
+    first = reports[1].tracks[0]
+    assert (first.created_scan_id, first.status, reports[1].t_s) == (2, "CONFIRMED", 3.0)
+    assert all(t.status == "CONFIRMED" for r in reports[1:] for t in r.tracks)
+    c = np.deg2rad(256.0)
+    truth = np.array([9000.0, 5000.0, 1000.0]) + 150.0 * 200.0 * np.array([np.sin(c), np.cos(c), 0.0])
+    assert float(np.linalg.norm(np.array(reports[-1].tracks[0].state_enu[:3]) - truth)) < 250.0
+
+
+def test_demo_with_two_instances_equals_the_offline_services(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two pairs, clutter, a turn and a late target; the end marker may overtake the last scans of both keys."""
+    demo = REPO / "scenarios" / "pcl_tracker_demo.yaml"
+    services = ["pcl_tracker-rx1-fm", "pcl_tracker-rx1-dvbt"]
+    _, recordings = run_stack(tmp_path, demo, services)
+    by_topic = recorded_by_topic(recordings)
+    for svc_name in services:
+        for key, msgs in offline_outputs(monkeypatch, demo, svc_name).items():
+            assert by_topic[key] == msgs, (svc_name, key)
+    tracks = {k for k in by_topic if k.startswith("fixstream/track/")}
+    assert tracks == {"fixstream/track/pcl/rx1/tx-fm-98.1", "fixstream/track/pcl/rx1/tx-dvbt-530"}
+
+
+def _status(client: zenoh.Session, instance: str) -> dict[str, Any]:
+    replies = list(client.get(keys.status("pcl_tracker", instance), timeout=3.0))
+    assert len(replies) == 1 and replies[0].ok is not None
+    return json.loads(replies[0].ok.payload.to_bytes())  # type: ignore[no-any-return]
+
+
+def test_bad_input_over_a_real_router(router: str) -> None:
+    instance = "bad"
+    items = dirty_stream(clean_scans())
+    expected_reports, expected_diags = run_items(make_service(instance), items)
+
+    client = open_session(ZenohSettings(mode="client", connect=[router]))
+    got: list[Message] = []
+    diags: list[Message] = []
+    lock = threading.Lock()
+
+    def collect(into: list[Message]) -> Any:
+        def cb(sample: zenoh.Sample) -> None:
+            with lock:
+                into.append(codec.decode(sample.payload.to_bytes(), str(sample.encoding)))
+
+        return cb
+
+    subs = [
+        client.declare_subscriber(OUT_KEY, collect(got)),
+        client.declare_subscriber(keys.diag("pcl_tracker", instance), collect(diags)),
+    ]
+    env = service_env(router, FIXSTREAM_PCL_TRACKER_INSTANCE=instance)
+    proc = subprocess.Popen(fixstream_cmd("run", "pcl_tracker"), env=env, cwd=REPO, text=True)
+    try:
+        alive = keys.alive("pcl_tracker", instance)
+        assert wait_until(lambda: len(list(client.liveliness().get(alive, timeout=0.5))) == 1, timeout=60)
+        pub = client.declare_publisher(IN_KEY, congestion_control=zenoh.CongestionControl.BLOCK)
+        for it in items:
+            pub.put(it.payload, encoding=zenoh.Encoding(it.encoding))
+        assert wait_until(lambda: _status(client, instance)["counters"]["received"] == len(items), timeout=60)
+        assert wait_until(lambda: len(got) == len(expected_reports) and len(diags) == len(expected_diags), timeout=30)
+        status = _status(client, instance)
+        assert proc.poll() is None  # still running after all of it
+    finally:
+        proc.terminate()
+        code = proc.wait(timeout=30)
+        for s in subs:
+            s.undeclare()
+        client.close()
+    assert code == 0
+
+    assert got == expected_reports  # message for message, as the offline run of the same input
+    assert diags == expected_diags
+    reports = [r for r in got if isinstance(r, PclScanReport)]
+    clean = [o.msg for o in make_service("clean").run_offline([(IN_KEY, s) for s in clean_scans()]) if o.key == OUT_KEY]
+    assert track_view(reports) == track_view(clean)  # type: ignore[arg-type]
+    expected_rejects = {it.reject for it in items if it.reject}
+    assert {d.reason for d in diags} >= expected_rejects | {ev for it in items for ev in it.events}  # type: ignore[attr-defined]
+    c = status["counters"]
+    assert c["received"] == len(items) and c["accepted"] + c["rejected"] == c["received"]
+    assert set(c["rejected_by_reason"]) == expected_rejects
+    assert status["plots_received"] == sum(r.n_plots_in for r in reports)
+    assert status["plots_rejected"] == sum(sum(r.n_plots_rejected.values()) for r in reports)
+    assert status["scans_processed"] == 51 and status["reports_published"] == 51
+    assert status["live_tracks"] == 1 and status["confirmed"] == 1
