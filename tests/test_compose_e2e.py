@@ -22,7 +22,7 @@ def test_up_records_the_demo_scenario(tmp_path: Path) -> None:
     scenario = tmp_path / "scenario.yaml"
     shutil.copy(REPO / "scenarios" / "demo.yaml", scenario)
     spec = yaml.safe_load(scenario.read_text())
-    platforms = {sim["params"]["platform"] for sim in spec["simulators"]}
+    platforms = {sim["params"]["platform"] for sim in spec["simulators"] if "platform" in sim["params"]}
     recordings = tmp_path / "recordings"
     env = {k: v for k, v in os.environ.items() if not k.startswith("FIXSTREAM_")}
     env.update({"FIXSTREAM_SCENARIO": str(scenario), "FIXSTREAM_RATE": "0"})
@@ -57,6 +57,15 @@ def test_up_records_the_demo_scenario(tmp_path: Path) -> None:
     for platform in platforms:
         assert counts[f"fixstream/truth/{platform}"] > 0, counts
         assert any(k.startswith(f"fixstream/sensor/{platform}/") for k in counts), counts
+    # the demo's estimators answered: terrain verdicts and fixes, one PCL report per scan and pair
+    for key in (
+        "fixstream/fix/terrain/tan1/verdict",
+        "fixstream/fix/terrain/tan1",
+        "fixstream/track/pcl/rx1/tx-fm-98.1",
+        "fixstream/track/pcl/rx1/tx-dvbt-530",
+    ):
+        assert counts[key] > 0, (key, sorted(counts))
+    assert counts["fixstream/track/pcl/rx1/tx-fm-98.1"] == counts["fixstream/sensor/rx1/pcl/tx-fm-98.1"]
     published = re.search(r"published (\d+) messages", out)
     assert published is not None, out
     streams = sum(n for k, n in counts.items() if k.startswith(("fixstream/truth/", "fixstream/sensor/")))
