@@ -1,0 +1,384 @@
+"""Per-hypothesis EKF (2.3), gradual backward processing of buffered epochs through the augmented state
+(Eq. 5, Fig. 4, 2.4), common innovation gating (5.4), the posterior ratio, decision rule (6) and merge (2.5).
+
+``HypothesisBank`` runs every live hypothesis in lock-step so that all of them process exactly the same
+measurements in the same order (test U12); it is generic in the measurement rows (``models.Row``).
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.stats import chi2
+
+from .config import LblNavConfig
+from .models import AUG, COPY_IDX, F64, IDC, IDK, IX, IY, SDK, DrInterval, MotionModel, Row, noise_cov
+
+ROW_LOG_MAX = 20_000
+
+
+@dataclass
+class BufferedEpoch:
+    """One stored epoch s < 0: the DR of (t_{s-1}, t_s] and at most one range (a vector if launch was postponed)."""
+
+    k: int
+    stamp_ns: int
+    dr: DrInterval
+    rows: list[Row] = field(default_factory=list)
+    depth_m: float | None = None
+
+
+class HypothesisFilter:
+    """EKF of one hypothesis u on X (6 states) or the augmented X_{s,i} (11 states)."""
+
+    def __init__(self, hyp_id: int, X: F64, P: F64, A: float = 0.0, lnB: float = 0.0) -> None:
+        self.hyp_id = hyp_id
+        self.X = np.array(X, dtype=np.float64)
+        self.P = np.array(P, dtype=np.float64)
+        self.A = A  # sum of nu^T S^-1 nu
+        self.lnB = lnB  # sum of ln det S
+        self.n_rows = 0
+        self.crc = 0
+        self.row_log: deque[tuple[int, str]] = deque(maxlen=ROW_LOG_MAX)
+
+    @property
+    def augmented(self) -> bool:
+        return self.X.size == 11
+
+    def idx(self, block: str) -> tuple[int, int, int]:
+        """Indices of (x, y, dc) used by a row of the buffered ('s') or current ('i') block."""
+        if self.augmented:
+            return (0, 1, AUG + IDC) if block == "s" else (AUG + IX, AUG + IY, AUG + IDC)
+        if block == "s":
+            raise ValueError("a buffered row needs the augmented state")
+        return IX, IY, IDC
+
+    def current(self) -> tuple[F64, F64]:
+        """X_i and its 6x6 covariance (the last six components when augmented)."""
+        if self.augmented:
+            return self.X[AUG:], self.P[AUG:, AUG:]
+        return self.X, self.P
+
+    # ---- augmentation ------------------------------------------------------------------------------------------
+    def augment(self) -> None:
+        """[R] X_{0,0} = J X_0, P_{0,0} = J P_0 J^T with J = [S; I_6]: copy and original fully correlated."""
+        J = np.zeros((11, 6))
+        for r, c in enumerate(COPY_IDX):
+            J[r, c] = 1.0
+        J[AUG:, :] = np.eye(6)
+        self.X = J @ self.X
+        self.P = J @ self.P @ J.T
+
+    def drop_augmentation(self) -> None:
+        """s reached -N: keep the last six components and their 6x6 block."""
+        self.X = self.X[AUG:].copy()
+        self.P = self.P[AUG:, AUG:].copy()
+
+    # ---- prediction --------------------------------------------------------------------------------------------
+    def predict_forward(self, Phi: F64, b: F64, Q: F64) -> None:
+        self.X = Phi @ self.X + b
+        self.P = Phi @ self.P @ Phi.T + Q
+        self.P = 0.5 * (self.P + self.P.T)
+
+    def predict_backward(self, Phib: F64, bb: F64, Qb: F64) -> None:
+        """Step of kind 1: the buffered copy goes back s+1 -> s, X_i untouched (identity, no noise)."""
+        X, P = self.X, self.P
+        X[:AUG] = Phib @ X[:AUG] + bb
+        top = Phib @ P[:AUG, :]
+        P[:AUG, :] = top
+        P[:, :AUG] = P[:, :AUG] @ Phib.T
+        P[:AUG, :AUG] += Qb
+        self.P = 0.5 * (P + P.T)
+
+    def predict_joint(self, Phib: F64, bb: F64, Qb: F64, Phi: F64, b: F64, Q: F64) -> None:
+        """Step of kind 2: copy backwards and X_i forwards; block-diagonal transition."""
+        F = np.zeros((11, 11))
+        F[:AUG, :AUG] = Phib
+        F[AUG:, AUG:] = Phi
+        Qa = np.zeros((11, 11))
+        Qa[:AUG, :AUG] = Qb
+        Qa[AUG:, AUG:] = Q
+        self.X = np.concatenate([Phib @ self.X[:AUG] + bb, Phi @ self.X[AUG:] + b])
+        self.P = F @ self.P @ F.T + Qa
+        self.P = 0.5 * (self.P + self.P.T)
+
+    # ---- update ------------------------------------------------------------------------------------------------
+    def innovations(self, rows: list[Row], second_order: bool = False) -> tuple[F64, F64, F64]:
+        """nu = Y - h(X^-), H = dh/dX at X^- and the extra variance of each row (zero for a plain EKF).
+
+        [IMPL] ``second_order``: Gaussian second-order correction of the range nonlinearity, h += 1/2 tr(Hess P)
+        and variance += 1/2 tr((Hess P)^2) with the horizontal position block of P."""
+        m, n = len(rows), self.X.size
+        nu = np.empty(m)
+        extra = np.zeros(m)
+        H = np.zeros((m, n))
+        X, P = self.X, self.P
+        for r, row in enumerate(rows):
+            px, py, pdc = self.idx(row.block)
+            x, y = float(X[px]), float(X[py])
+            h, hx, hy, hdc = row.predict(x, y, float(X[pdc]))
+            if second_order:
+                a, b, c = row.hessian_xy(x, y)
+                pxx, pxy, pyy = P[px, px], P[px, py], P[py, py]
+                h += 0.5 * (a * pxx + 2.0 * b * pxy + c * pyy)
+                # (Hess P) = [[a pxx + b pxy, a pxy + b pyy], [b pxx + c pxy, b pxy + c pyy]]
+                m00, m01 = a * pxx + b * pxy, a * pxy + b * pyy
+                m10, m11 = b * pxx + c * pxy, b * pxy + c * pyy
+                extra[r] = 0.5 * (m00 * m00 + 2.0 * m01 * m10 + m11 * m11)
+            nu[r] = row.value - h
+            H[r, px] = hx
+            H[r, py] = hy
+            H[r, pdc] = hdc
+        return nu, H, extra
+
+    def update(self, nu: F64, H: F64, R: F64, rows: list[Row], iterations: int = 1) -> None:
+        """Joseph-form EKF update; accumulates A += nu^T S^-1 nu and ln B += ln det S.
+
+        [IMPL] ``iterations`` > 1: iterated EKF (Gauss-Newton relinearisation of the rows at the updated state;
+        nu and H are then taken at the last linearisation point)."""
+        P = self.P
+        if iterations > 1:
+            x_prior = self.X
+            x_j = x_prior
+            for _ in range(iterations - 1):
+                PHt = P @ H.T
+                S = H @ PHt + R
+                x_j = x_prior + PHt @ np.linalg.solve(S, nu)
+                self.X = x_j
+                nu_j, H, _ = self.innovations(rows)
+                nu = nu_j - H @ (x_prior - x_j)
+            self.X = x_prior
+        PHt = P @ H.T
+        S = H @ PHt + R
+        m = S.shape[0]
+        if m == 1:
+            s = float(S[0, 0])
+            if not s > 0.0:
+                raise np.linalg.LinAlgError("innovation variance is not positive")
+            K = PHt / s
+            a = float(nu[0]) ** 2 / s
+            logdet = math.log(s)
+        else:
+            S = 0.5 * (S + S.T)
+            L = np.linalg.cholesky(S)
+            Sinv = np.linalg.inv(S)
+            K = PHt @ Sinv
+            a = float(nu @ Sinv @ nu)
+            logdet = 2.0 * float(np.sum(np.log(np.diag(L))))
+        self.X = self.X + K @ nu
+        IKH = _eye(P.shape[0]) - K @ H
+        Pn = IKH @ P @ IKH.T + K @ R @ K.T
+        self.P = 0.5 * (Pn + Pn.T)
+        self.A += a
+        self.lnB += logdet
+        for row in rows:
+            self.n_rows += 1
+            self.row_log.append((row.stamp_ns, row.key))
+            self.crc = zlib.crc32(f"{row.stamp_ns}:{row.key};".encode(), self.crc)
+
+
+_EYE: dict[int, F64] = {}
+
+
+def _eye(n: int) -> F64:
+    e = _EYE.get(n)
+    if e is None:
+        e = _EYE[n] = np.eye(n)
+        e.flags.writeable = False
+    return e
+
+
+@dataclass
+class StepReport:
+    """What one lock-step update did with the rows of the current epoch."""
+
+    used_current: int = 0
+    rejected_current: int = 0
+    rejected_buffered: int = 0
+    rejected_keys: list[str] = field(default_factory=list)
+
+
+@dataclass
+class Decision:
+    kind: str  # "decision" or "merge"
+    hypothesis_id: int | None
+    log_ratio: float
+
+
+class HypothesisBank:
+    """All live hypotheses of one vehicle plus the shared buffered-processing schedule (s, N, Delta N)."""
+
+    def __init__(
+        self,
+        cfg: LblNavConfig,
+        motion: MotionModel,
+        hyps: list[HypothesisFilter],
+        buffer: list[BufferedEpoch],
+        launch_dr: DrInterval | None,
+    ) -> None:
+        self.cfg = cfg
+        self.motion = motion
+        self.hyps = list(hyps)
+        self.buffer = list(buffer) if launch_dr is not None else []
+        self.N = len(self.buffer)
+        self.processed = 0  # = -s
+        self._launch_dr = launch_dr
+        self.gate = float(chi2.ppf(cfg.gate_prob, 1))
+        self.decided: int | None = None
+        self.merged = False
+        if self.N > 0:
+            for h in self.hyps:
+                h.augment()
+
+    # ---- schedule ----------------------------------------------------------------------------------------------
+    @property
+    def catching_up(self) -> bool:
+        return self.processed < self.N
+
+    @property
+    def augmented(self) -> bool:
+        return self.hyps[0].augmented
+
+    def _next_entry(self) -> tuple[DrInterval, BufferedEpoch]:
+        """Buffered epoch s = -(processed+1) and the DR of (t_s, t_{s+1}] for the backward step."""
+        j = self.N - 1 - self.processed
+        dr = self._launch_dr if j == self.N - 1 else self.buffer[j + 1].dr
+        assert dr is not None
+        return dr, self.buffer[j]
+
+    def _finish_buffer(self) -> None:
+        if self.augmented and self.processed >= self.N:
+            for h in self.hyps:
+                h.drop_augmentation()
+            self.buffer = []
+
+    def _back_step(self, report: StepReport) -> None:
+        dr, entry = self._next_entry()
+        for h in self.hyps:
+            Phib, bb, Qb = self.motion.backward(dr, float(h.X[SDK]))
+            h.predict_backward(Phib, bb, Qb)
+        self.processed += 1
+        self.update_all(list(entry.rows), report)
+
+    def launch_steps(self) -> StepReport:
+        """At i = 0: Delta N_0 buffered epochs (s = -1 ... -Delta N_0)."""
+        return self.process_buffered(self.cfg.dN0)
+
+    def process_buffered(self, count: int) -> StepReport:
+        """Up to ``count`` steps of kind 1 (backward prediction and update with Y_s only)."""
+        report = StepReport()
+        for _ in range(min(count, self.N - self.processed)):
+            self._back_step(report)
+        self._finish_buffer()
+        return report
+
+    def epoch_step(self, dr: DrInterval, rows: list[Row]) -> StepReport:
+        """Epoch i >= 1: joint step with Y_i (kind 2) then Delta N - 1 buffered steps (kind 1), or a plain EKF step."""
+        report = StepReport()
+        if self.augmented:
+            drb, entry = self._next_entry()
+            for h in self.hyps:
+                Phib, bb, Qb = self.motion.backward(drb, float(h.X[SDK]))
+                Phi, b, Q = self.motion.forward(dr, float(h.X[AUG + IDK]))
+                h.predict_joint(Phib, bb, Qb, Phi, b, Q)
+            self.processed += 1
+            self.update_all(list(entry.rows) + list(rows), report)
+            for _ in range(self.cfg.dN - 1):
+                if not self.catching_up:
+                    break
+                self._back_step(report)
+            self._finish_buffer()
+        else:
+            for h in self.hyps:
+                Phi, b, Q = self.motion.forward(dr, float(h.X[IDK]))
+                h.predict_forward(Phi, b, Q)
+            self.update_all(list(rows), report)
+        return report
+
+    # ---- common gating and update ----------------------------------------------------------------------------
+    def update_all(self, rows: list[Row], report: StepReport) -> None:
+        """Reject a row only if it is an outlier under every live hypothesis; then all hypotheses drop it."""
+        if not rows:
+            return
+        cfg = self.cfg
+        R = noise_cov([r.group for r in rows], cfg.sigma_delta_m, cfg.sigma_v_m)
+        r_diag = cfg.sigma_delta_m**2 + cfg.sigma_v_m**2
+        per_hyp = []
+        outlier_everywhere = np.ones(len(rows), dtype=bool)
+        so = cfg.second_order
+        for h in self.hyps:
+            nu, H, extra = h.innovations(rows, so)
+            s_diag = ((H @ h.P) * H).sum(axis=1) + r_diag + extra
+            outlier_everywhere &= nu * nu > self.gate * s_diag
+            per_hyp.append((nu, H, extra))
+        keep = ~outlier_everywhere
+        for r, row in enumerate(rows):
+            if row.block == "i":
+                if keep[r]:
+                    report.used_current += 1
+                else:
+                    report.rejected_current += 1
+            elif not keep[r]:
+                report.rejected_buffered += 1
+            if not keep[r]:
+                report.rejected_keys.append(f"{row.stamp_ns}:{row.key}")
+        if not keep.any():
+            return
+        if keep.all():
+            for h, (nu, H, extra) in zip(self.hyps, per_hyp, strict=True):
+                h.update(nu, H, R + np.diag(extra) if so else R, rows, cfg.ekf_iterations)
+            return
+        kept = [row for row, k in zip(rows, keep, strict=True) if k]
+        Rk = R[np.ix_(keep, keep)]
+        for h, (nu, H, extra) in zip(self.hyps, per_hyp, strict=True):
+            Rh = Rk + np.diag(extra[keep]) if so else Rk
+            h.update(nu[keep], H[keep], Rh, kept, cfg.ekf_iterations)
+
+    # ---- ratio, decision (6) and merge -----------------------------------------------------------------------
+    def log_ratio(self) -> float | None:
+        """ln delta p^{1/2} = 1/2 (ln B2 - ln B1) + 1/2 (A2 - A1); None unless two hypotheses are alive."""
+        if len(self.hyps) != 2:
+            return None
+        h1, h2 = self.hyps
+        return 0.5 * (h2.lnB - h1.lnB) + 0.5 * (h2.A - h1.A)
+
+    def probabilities(self) -> dict[int, float]:
+        lr = self.log_ratio()
+        if lr is None:
+            return {h.hyp_id: 1.0 for h in self.hyps}
+        p1 = 1.0 / (1.0 + math.exp(-lr)) if lr > -700 else 0.0
+        return {self.hyps[0].hyp_id: p1, self.hyps[1].hyp_id: 1.0 - p1}
+
+    def decide(self) -> Decision | None:
+        """Rule (6); otherwise merge when the two position estimates are closer than r."""
+        lr = self.log_ratio()
+        if lr is None:
+            return None
+        thr = self.cfg.ln_threshold
+        if lr >= thr or lr <= -thr:
+            keep = self.hyps[0] if lr >= thr else self.hyps[1]
+            self.hyps = [keep]
+            self.decided = keep.hyp_id
+            return Decision("decision", keep.hyp_id, lr)
+        (x1, _), (x2, _) = self.hyps[0].current(), self.hyps[1].current()
+        if (x1[IX] - x2[IX]) ** 2 + (x1[IY] - x2[IY]) ** 2 < self.cfg.r_merge_m**2:
+            self.hyps = [merge(self.hyps[0], self.hyps[1], lr)]
+            self.merged = True
+            return Decision("merge", None, lr)
+        return None
+
+
+def merge(h1: HypothesisFilter, h2: HypothesisFilter, log_ratio: float) -> HypothesisFilter:
+    """[R] Moment matching with weights p1 = dp/(1+dp), p2 = 1/(1+dp) of the full (augmented) state."""
+    p1 = 1.0 / (1.0 + math.exp(-log_ratio))
+    p2 = 1.0 - p1
+    X = p1 * h1.X + p2 * h2.X
+    d1, d2 = h1.X - X, h2.X - X
+    P = p1 * (h1.P + np.outer(d1, d1)) + p2 * (h2.P + np.outer(d2, d2))
+    out = HypothesisFilter(1, X, 0.5 * (P + P.T))
+    out.n_rows, out.crc, out.row_log = h1.n_rows, h1.crc, deque(h1.row_log, maxlen=ROW_LOG_MAX)
+    return out
