@@ -21,6 +21,7 @@ AttitudeFlag = Literal[
     "ROLL_UNDEFINED",
     "LINEARISATION_INVALID",
     "GAP_RESET",
+    "SCANS_MISSED",
     "NIS_RESET",
     "COVARIANCE_RESET",
     "TRACK_ID_REUSED",

@@ -192,6 +192,11 @@ class AttitudeCore:
             n_buffered=len(tr.buffer),
         )
 
+    def site_parameters(self, site_id: str) -> tuple[MeasurementSigmas, float]:
+        """The sigmas and scan period (s) in use for a site: its last RadarSite, else the configuration's."""
+        site = self._site(site_id)
+        return site.sigmas, site.scan_period_s
+
     def targets(self) -> list[tuple[str, str]]:
         """(site_id, target_id) of every target with state, in creation order."""
         return list(self._tracks)
@@ -275,7 +280,7 @@ class AttitudeCore:
                 if len(tr.buffer) == cfg.fsf_n and not self._fsf_start(tr, period_ns):
                     flags.append("INIT_WAITING_SPREAD")
         else:
-            nis = self._kf_step(tr, t, z, rz, reset_ns, flags)
+            nis = self._kf_step(tr, t, z, rz, period_ns, flags)
             if tr.x is None:
                 status = "RESET"
                 nis = None
@@ -310,11 +315,13 @@ class AttitudeCore:
         tr.buffer.clear()
         return True
 
-    def _kf_step(self, tr: _Track, t: int, z: F64, rz: F64, reset_ns: float, flags: list[AttitudeFlag]) -> float | None:
+    def _kf_step(
+        self, tr: _Track, t: int, z: F64, rz: F64, period_ns: float, flags: list[AttitudeFlag]
+    ) -> float | None:
         """Predict and update (eq. 3) with gap, gate and covariance checks; may RESET the track."""
         assert tr.x is not None and tr.p is not None and tr.t_ns is not None
         cfg = self.config
-        if t - tr.t_ns > reset_ns:
+        if t - tr.t_ns > cfg.reset_gap_scans * period_ns:
             tr.restart(t, z, rz)
             flags.append("GAP_RESET")
             self.counters["reset_gap"] += 1
@@ -341,6 +348,9 @@ class AttitudeCore:
             flags.append("COVARIANCE_RESET")
             self.counters["reset_covariance"] += 1
             return None
+        if t - tr.t_ns > cfg.coast_after_scans * period_ns:
+            flags.append("SCANS_MISSED")  # predicted over the gap (§5.6): the covariance grew through M
+            self.counters["scans_missed"] += 1
         tr.x, tr.p, tr.t_ns = x, p, t
         tr.n_updates += 1
         tr.nis_fail = 0

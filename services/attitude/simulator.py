@@ -1,0 +1,448 @@
+"""Player plugin ``attitude``: one monostatic 3-D radar site and the aircraft it sees (digest 004 §3.1, §5.1).
+
+Wraps the core's pure simulation (:mod:`services.attitude.simulation`): coordinated flight along a
+:class:`~services.attitude.simulation.FlightPlan` (the paper's §3.1 straight-and-level scenario, the three
+manoeuvring plans, or a start state plus turn/climb/acceleration segments given in the file), and plots =
+true (range, azimuth, elevation) + independent Gaussian noise with the radar's sigmas (§4.6). Keys
+(``<site>`` = ``site_id``, ``<sensor>`` = ``sensor_id``, default ``plots``):
+
+* ``fixstream/sensor/<site>/radar/<sensor>``: one :class:`~schemas.RadarSite` at t = 0 (the site's sigmas and
+  scan period, unless ``publish_site: false``), then every :class:`~schemas.RadarPlot` in stamp order, and a
+  :class:`~schemas.TrackEnd` after a target's last plot when it has ``track_end: true``. One key, so the
+  service sees them in the order they were made;
+* ``fixstream/truth/<target id>``: :class:`~schemas.Truth` at every scan time of the target (also when its
+  plot is missing), unless ``publish_truth: false``: position, velocity and acceleration ``[east, north, up]``
+  in the scenario frame (the radar at ``site_position_m``), ``attitude_rad`` = [heading, pitch, roll] of the
+  coordinated flight, and ``extra``: true ``range_m``, ``az_deg``, ``el_deg`` seen from the radar and
+  ``speed_mps``.
+
+Every target's trajectory is registered in the scenario context under its id (ENU, for later simulators).
+Randomness: target ``<id>``'s plot noise comes from the child stream ``noise/<id>``, its detection draws from
+``detect/<id>`` and the generated targets (``random_targets``) from ``random_targets``, so adding a target
+does not change the others' noise.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import AfterValidator, Field, model_validator
+
+from schemas import RadarPlot, RadarSite, TrackEnd, Truth
+from services.player.simulators import (
+    NS_PER_S,
+    Event,
+    ScenarioContext,
+    SimParams,
+    TruthState,
+    child_rng,
+    register,
+)
+from shared import keys
+
+from .config import RADAR_PRESETS, MeasurementSigmas, RadarPreset
+from .simulation import (
+    G_TRUTH_MPS2,
+    FlightPlan,
+    Segment,
+    TruthStates,
+    fly,
+    manoeuvring_plans,
+    measure,
+    paper_plan,
+    true_spherical,
+)
+
+KeyChunk = Annotated[str, AfterValidator(keys.chunk)]
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+Rate = float | Annotated[list[float], Field(min_length=2, max_length=2)]
+
+#: the named flight plans of the core's simulation: "paper" (§3.1) and the manoeuvring ones
+NAMED_PLANS = ("paper", "turn30", "climb10", "weave")
+#: plot order within one stamp: the site first, then per target (file order): truth, plot, track end
+_SITE, _TRUTH, _PLOT, _END = 0, 1, 2, 3
+
+
+def radar_key(site_id: str, sensor_id: str = "plots") -> str:
+    """``fixstream/sensor/<site>/radar/<sensor>``: where a site's plots, track ends and site messages go."""
+    return keys.sensor(site_id, "radar", sensor_id)
+
+
+def enu_to_nue(v: np.ndarray) -> np.ndarray:
+    """[east, north, up] -> the radar frame E of the digest [north, up, east] (last axis)."""
+    return np.asarray(v)[..., [1, 2, 0]]
+
+
+def nue_to_enu(v: np.ndarray) -> np.ndarray:
+    """The radar frame E [north, up, east] -> [east, north, up] (last axis)."""
+    return np.asarray(v)[..., [2, 0, 1]]
+
+
+class StartParams(SimParams):
+    """Initial state: a position (``position_m``, or ``range_m`` + ``azimuth_deg`` + ``altitude_m``) and velocity."""
+
+    position_m: Vec3 | None = Field(default=None, description="[east, north, up] relative to the radar, m")
+    range_m: float | None = Field(default=None, gt=0.0, le=2.0e6, description="slant range from the radar, m")
+    azimuth_deg: float | None = Field(default=None, ge=-360.0, le=360.0, description="clockwise from north, deg")
+    altitude_m: float | None = Field(default=None, ge=-1000.0, le=30_000.0, description="height above the radar, m")
+    heading_deg: float = Field(ge=-360.0, le=360.0, description="flight-path heading, clockwise from north, deg")
+    pitch_deg: float = Field(default=0.0, ge=-80.0, le=80.0, description="flight-path angle, nose up +, deg")
+    speed_mps: float = Field(gt=0.0, le=1500.0, description="speed along the flight path, m/s")
+
+    @model_validator(mode="after")
+    def _one_position(self) -> StartParams:
+        polar = [v is not None for v in (self.range_m, self.azimuth_deg, self.altitude_m)]
+        if (self.position_m is not None and any(polar)) or (self.position_m is None and not all(polar)):
+            raise ValueError("give position_m, or all of range_m, azimuth_deg and altitude_m")
+        if self.range_m is not None and self.altitude_m is not None and abs(self.altitude_m) >= self.range_m:
+            raise ValueError("altitude_m must be smaller than range_m")
+        return self
+
+    def position_nue(self) -> tuple[float, float, float]:
+        """Start position in the radar frame E [north, up, east], m."""
+        if self.position_m is not None:
+            e, n, u = self.position_m
+            return (n, u, e)
+        assert self.range_m is not None and self.azimuth_deg is not None and self.altitude_m is not None
+        p = paper_plan(r0_m=self.range_m, az0_deg=self.azimuth_deg, h0_m=self.altitude_m).p0_m
+        return (p[0], p[1], p[2])
+
+
+class SegmentParams(SimParams):
+    """One manoeuvre segment; a rate is a constant or ``[from, to]``, ramped linearly over the segment."""
+
+    duration_s: float = Field(gt=0.0, le=1e6, description="s")
+    turn_rate_dps: Rate = Field(default=0.0, description="d(heading)/dt, deg/s, + to starboard (clockwise)")
+    bank_deg: float | None = Field(
+        default=None,
+        gt=-80.0,
+        lt=80.0,
+        description="coordinated level turn at this bank: turn rate g tan(bank) / V (instead of turn_rate_dps)",
+    )
+    pitch_rate_dps: Rate = Field(default=0.0, description="d(flight-path angle)/dt, deg/s, + nose up")
+    accel_mps2: float = Field(default=0.0, ge=-50.0, le=50.0, description="dV/dt along the path, m/s^2")
+
+    @model_validator(mode="after")
+    def _rates(self) -> SegmentParams:
+        for name in ("turn_rate_dps", "pitch_rate_dps"):
+            for r in _pair(getattr(self, name)):
+                if abs(r) > 30.0:
+                    raise ValueError(f"{name}: |rate| must be at most 30 deg/s, got {r}")
+        if self.bank_deg is not None and (self.turn_rate_dps != 0.0 or self.accel_mps2 != 0.0):
+            raise ValueError("bank_deg sets the turn rate at constant speed: no turn_rate_dps or accel_mps2 with it")
+        return self
+
+
+def _pair(rate: float | list[float]) -> tuple[float, float]:
+    if isinstance(rate, list):
+        return (float(rate[0]), float(rate[1]))
+    return (float(rate), float(rate))
+
+
+class TargetParams(SimParams):
+    """One aircraft: a named plan, or a start state and segments (after the last one it flies straight)."""
+
+    id: KeyChunk = Field(description="target id: RadarPlot.target_id and the truth key fixstream/truth/<id>")
+    plan: Literal["paper", "turn30", "climb10", "weave"] | None = Field(
+        default=None, description="a named plan: paper (§3.1: 100 km, 60 deg, 5 km, 220 deg, 200 m/s) or manoeuvring"
+    )
+    start: StartParams | None = Field(default=None, description="initial state (instead of plan)")
+    segments: list[SegmentParams] = Field(default_factory=list, max_length=1000)
+    phase_s: float = Field(default=0.0, ge=0.0, description="time of the target's first plot, s")
+    end_s: float | None = Field(default=None, gt=0.0, description="no plots after this time, s (None: to the end)")
+    missed_scans: list[Annotated[int, Field(ge=1)]] = Field(
+        default_factory=list, max_length=100_000, description="scan numbers (1 = first) without a plot"
+    )
+    p_detect: float = Field(default=1.0, gt=0.0, le=1.0, description="probability that a scan gives a plot")
+    track_end: bool = Field(default=False, description="publish a TrackEnd right after the last plot")
+
+    @model_validator(mode="after")
+    def _one_plan(self) -> TargetParams:
+        if (self.plan is None) == (self.start is None):
+            raise ValueError("give exactly one of plan and start")
+        if self.plan is not None and self.segments:
+            raise ValueError("segments go with start, not with a named plan")
+        if self.end_s is not None and self.end_s < self.phase_s:
+            raise ValueError("end_s must not be before phase_s")
+        if self.start is not None:
+            speed, pitch = self.start.speed_mps, self.start.pitch_deg
+            for i, seg in enumerate(self.segments):
+                speed += seg.accel_mps2 * seg.duration_s
+                p0, p1 = _pair(seg.pitch_rate_dps)
+                pitch += 0.5 * (p0 + p1) * seg.duration_s
+                if speed < 1.0:
+                    raise ValueError(f"segments[{i}]: the speed falls to {speed:.1f} m/s (must stay >= 1 m/s)")
+                if abs(pitch) > 80.0:
+                    raise ValueError(f"segments[{i}]: the flight-path angle reaches {pitch:.1f} deg (limit 80)")
+        return self
+
+    def flight_plan(self) -> FlightPlan:
+        if self.plan == "paper":
+            return paper_plan()
+        if self.plan is not None:
+            return manoeuvring_plans()[self.plan]
+        assert self.start is not None
+        st = self.start
+        speed = st.speed_mps
+        segs = []
+        for seg in self.segments:
+            turn = _pair(seg.turn_rate_dps)
+            if seg.bank_deg is not None:
+                w = math.degrees(G_TRUTH_MPS2 * math.tan(math.radians(seg.bank_deg)) / speed)
+                turn = (w, w)
+            segs.append(Segment(seg.duration_s, turn, _pair(seg.pitch_rate_dps), seg.accel_mps2))
+            speed += seg.accel_mps2 * seg.duration_s
+        return FlightPlan(
+            p0_m=st.position_nue(),
+            speed_mps=st.speed_mps,
+            psi_deg=st.heading_deg,
+            theta_deg=st.pitch_deg,
+            segments=tuple(segs),
+        )
+
+
+class RandomTargets(SimParams):
+    """Many straight-flying targets with random starts (for load tests), ids ``<prefix>0``, ``<prefix>1``, ..."""
+
+    count: int = Field(ge=1, le=100_000)
+    prefix: KeyChunk = Field(default="t", description="id prefix")
+    range_m: Annotated[list[float], Field(min_length=2, max_length=2)] = Field(
+        default_factory=lambda: [40e3, 150e3], description="[low, high] of the uniform start range, m"
+    )
+    altitude_m: Annotated[list[float], Field(min_length=2, max_length=2)] = Field(
+        default_factory=lambda: [1e3, 10e3], description="[low, high] of the uniform start altitude, m"
+    )
+    speed_mps: Annotated[list[float], Field(min_length=2, max_length=2)] = Field(
+        default_factory=lambda: [120.0, 280.0], description="[low, high] of the uniform speed, m/s"
+    )
+    spread_phase: bool = Field(
+        default=True, description="first plot of each target at a uniform random time within the first scan"
+    )
+
+    @model_validator(mode="after")
+    def _intervals(self) -> RandomTargets:
+        for name in ("range_m", "altitude_m", "speed_mps"):
+            lo, hi = getattr(self, name)
+            if not 0.0 < lo <= hi:
+                raise ValueError(f"{name}: expected 0 < low <= high, got {[lo, hi]}")
+        if self.altitude_m[1] >= self.range_m[0]:
+            raise ValueError("altitude_m must stay below range_m")
+        return self
+
+
+class AttitudeSimParams(SimParams):
+    """Parameters of ``attitude``: the radar site, its sigmas and scan period, and its targets."""
+
+    site_id: KeyChunk = Field(description="radar site id: keys fixstream/sensor/<site_id>/radar/<sensor_id>")
+    sensor_id: KeyChunk = Field(default="plots", description="last chunk of the plot key")
+    radar: RadarPreset | None = Field(
+        default="9S15", description="sigma preset of the digest's §3.2 (9S15, Vostok3D, 19Zh6); sigma_* override it"
+    )
+    sigma_r_m: float | None = Field(default=None, gt=0.0, le=10_000.0, description="range error std, m")
+    sigma_az_deg: float | None = Field(default=None, gt=0.0, le=10.0, description="azimuth error std, deg")
+    sigma_el_deg: float | None = Field(default=None, gt=0.0, le=10.0, description="elevation error std, deg")
+    scan_period_s: float = Field(default=5.0, gt=0.0, le=3600.0, description="scan period T, s")
+    site_position_m: Vec3 = Field(
+        default_factory=lambda: [0.0, 0.0, 0.0], description="radar position [east, north, up] in the scenario frame"
+    )
+    lat_deg: float = Field(default=0.0, ge=-90.0, le=90.0, description="site latitude in RadarSite, deg")
+    lon_deg: float = Field(default=0.0, ge=-180.0, le=180.0, description="site longitude in RadarSite, deg")
+    publish_site: bool = Field(default=True, description="publish a RadarSite (sigmas, scan period) at t = 0")
+    publish_truth: bool = Field(default=True, description="publish Truth of every target on fixstream/truth/<id>")
+    targets: list[TargetParams] = Field(default_factory=list, max_length=100_000)
+    random_targets: RandomTargets | None = Field(default=None, description="add generated straight targets")
+
+    @model_validator(mode="after")
+    def _check(self) -> AttitudeSimParams:
+        if self.radar is None and None in (self.sigma_r_m, self.sigma_az_deg, self.sigma_el_deg):
+            raise ValueError("give a radar preset or all three sigma_* values")
+        ids = [t.id for t in self.targets]
+        for i, tid in enumerate(ids):
+            if tid in ids[:i]:
+                raise ValueError(f"targets[{i}].id: duplicate target id {tid!r}")
+        if not self.targets and self.random_targets is None:
+            raise ValueError("give targets or random_targets")
+        return self
+
+    def sigmas(self) -> MeasurementSigmas:
+        base = RADAR_PRESETS[self.radar] if self.radar is not None else (math.nan, math.nan, math.nan)
+        return MeasurementSigmas(
+            sigma_r_m=self.sigma_r_m if self.sigma_r_m is not None else base[0],
+            sigma_az_deg=self.sigma_az_deg if self.sigma_az_deg is not None else base[1],
+            sigma_el_deg=self.sigma_el_deg if self.sigma_el_deg is not None else base[2],
+        )
+
+
+class TargetTruth:
+    """Exact truth of one target in the scenario frame (a :class:`~services.player.simulators.TruthSource`)."""
+
+    def __init__(self, plan: FlightPlan, site_enu_m: list[float]) -> None:
+        self.plan = plan
+        self.site = np.asarray(site_enu_m, dtype=np.float64)
+
+    def states(self, stamps_ns: np.ndarray) -> TruthStates:
+        """The core's truth (radar frame E) at the stamps."""
+        return fly(self.plan, np.asarray(stamps_ns, dtype=np.float64) / NS_PER_S)
+
+    def truth_at(self, stamps_ns: np.ndarray) -> TruthState:
+        st = self.states(stamps_ns)
+        return TruthState(
+            position_m=self.site + nue_to_enu(st.p),
+            velocity_mps=nue_to_enu(st.v),
+            heading_rad=np.mod(st.psi, 2 * math.pi),
+            pitch_rad=st.theta,
+            roll_rad=st.gamma,
+        )
+
+
+@dataclass(frozen=True)
+class _Target:
+    """A target's plan and schedule, resolved from :class:`TargetParams` or drawn by :class:`RandomTargets`."""
+
+    id: str
+    plan: FlightPlan
+    phase_s: float
+    end_s: float | None = None
+    missed: frozenset[int] = frozenset()
+    p_detect: float = 1.0
+    track_end: bool = False
+
+
+@register("attitude")
+class AttitudeRadar:
+    """Plots, site description and truth of one radar site; see the module docstring."""
+
+    Params = AttitudeSimParams
+
+    def __init__(self, params: AttitudeSimParams, rng: np.random.Generator, context: ScenarioContext) -> None:
+        self.params = params
+        self.rng = rng
+        self.context = context
+        self.key = radar_key(params.site_id, params.sensor_id)
+        self.sigmas = params.sigmas()
+        self.targets = [
+            _Target(t.id, t.flight_plan(), t.phase_s, t.end_s, frozenset(t.missed_scans), t.p_detect, t.track_end)
+            for t in params.targets
+        ]
+        if params.random_targets is not None:
+            self.targets.extend(self._random_targets(params.random_targets, child_rng(rng, "random_targets")))
+        ids = [t.id for t in self.targets]
+        if len(set(ids)) != len(ids):
+            raise ValueError("a generated target id equals a listed one; change random_targets.prefix")
+        self.truths = {t.id: TargetTruth(t.plan, params.site_position_m) for t in self.targets}
+        for tid, source in self.truths.items():
+            context.register_platform(tid, source)
+
+    def _random_targets(self, spec: RandomTargets, rng: np.random.Generator) -> list[_Target]:
+        out = []
+        for i in range(spec.count):
+            r0 = rng.uniform(spec.range_m[0], spec.range_m[1])
+            h0 = rng.uniform(spec.altitude_m[0], spec.altitude_m[1])
+            az0 = rng.uniform(0.0, 360.0)
+            psi = rng.uniform(0.0, 360.0)
+            v = rng.uniform(spec.speed_mps[0], spec.speed_mps[1])
+            phase = rng.uniform(0.0, self.params.scan_period_s) if spec.spread_phase else 0.0
+            plan = paper_plan(
+                r0_m=float(r0), az0_deg=float(az0), h0_m=float(h0), psi_deg=float(psi), speed_mps=float(v)
+            )
+            out.append(_Target(f"{spec.prefix}{i}", plan, float(phase)))
+        return out
+
+    def _scan_stamps(self, target: _Target) -> np.ndarray:
+        """Stamps (ns) of the target's scans: phase + k T inside [phase, min(end, duration)]."""
+        t_end = self.context.duration_s if target.end_s is None else min(target.end_s, self.context.duration_s)
+        period = self.params.scan_period_s
+        if target.phase_s > t_end:
+            return np.zeros(0, dtype=np.int64)
+        n = math.floor((t_end - target.phase_s) / period + 1e-9) + 1
+        stamps = np.array([round((target.phase_s + k * period) * NS_PER_S) for k in range(n)], dtype=np.int64)
+        return stamps[stamps <= self.context.duration_ns]
+
+    def _site_event(self) -> Event:
+        p = self.params
+        msg = RadarSite(
+            header=self.context.header(0),
+            site_id=p.site_id,
+            lat_deg=p.lat_deg,
+            lon_deg=p.lon_deg,
+            h_m=min(max(p.site_position_m[2], -500.0), 10_000.0),
+            sigma_r_m=self.sigmas.sigma_r_m,
+            sigma_az_deg=self.sigmas.sigma_az_deg,
+            sigma_el_deg=self.sigmas.sigma_el_deg,
+            scan_period_s=p.scan_period_s,
+        )
+        return Event(0, self.key, msg)
+
+    def _target_events(self, index: int, target: _Target) -> Iterator[tuple[int, int, int, int, Event]]:
+        """(stamp, target index, kind, k, event) of one target, in stamp order."""
+        p = self.params
+        stamps = self._scan_stamps(target)
+        if stamps.size == 0:
+            return
+        truth = self.truths[target.id].states(stamps)
+        meas = measure(truth, self.sigmas, child_rng(self.rng, f"noise/{target.id}"))[0].tolist()
+        detected = np.ones(stamps.size, dtype=bool)
+        if target.p_detect < 1.0:
+            detected = child_rng(self.rng, f"detect/{target.id}").random(stamps.size) < target.p_detect
+        for k in target.missed:
+            if k <= stamps.size:
+                detected[k - 1] = False
+        r, beta, eps = true_spherical(truth.p)
+        site = np.asarray(p.site_position_m)
+        pos, vel, acc = site + nue_to_enu(truth.p), nue_to_enu(truth.v), nue_to_enu(truth.a)
+        truth_key = keys.truth(target.id)
+        last_plot = int(np.flatnonzero(detected)[-1]) if detected.any() else -1
+        for k, stamp in enumerate(stamps.tolist()):
+            header = self.context.header(stamp)
+            if p.publish_truth:
+                msg = Truth(
+                    header=header,
+                    platform=target.id,
+                    position_m=pos[k].tolist(),
+                    velocity_mps=vel[k].tolist(),
+                    acceleration_mps2=acc[k].tolist(),
+                    attitude_rad=[float(truth.psi[k]), float(truth.theta[k]), float(truth.gamma[k])],
+                    extra={
+                        "range_m": float(r[k]),
+                        "az_deg": math.degrees(float(beta[k])),
+                        "el_deg": math.degrees(float(eps[k])),
+                        "speed_mps": float(np.linalg.norm(truth.v[k])),
+                    },
+                )
+                yield (stamp, index, _TRUTH, k, Event(stamp, truth_key, msg))
+            if detected[k]:
+                rng_m, az, el = meas[k]
+                plot = RadarPlot(
+                    header=header, site_id=p.site_id, target_id=target.id, range_m=rng_m, az_deg=az, el_deg=el
+                )
+                yield (stamp, index, _PLOT, k, Event(stamp, self.key, plot))
+            if target.track_end and k == last_plot:
+                end = TrackEnd(header=header, site_id=p.site_id, target_id=target.id)
+                yield (stamp, index, _END, k, Event(stamp, self.key, end))
+
+    def events(self) -> Iterator[Event]:
+        streams = [self._target_events(i, t) for i, t in enumerate(self.targets)]
+        if self.params.publish_site:
+            yield self._site_event()
+        for item in heapq.merge(*streams, key=lambda e: (e[0], e[1], e[2])):
+            yield item[4]
+
+
+__all__ = [
+    "NAMED_PLANS",
+    "AttitudeRadar",
+    "AttitudeSimParams",
+    "RandomTargets",
+    "SegmentParams",
+    "StartParams",
+    "TargetParams",
+    "TargetTruth",
+    "enu_to_nue",
+    "nue_to_enu",
+    "radar_key",
+]

@@ -1,0 +1,267 @@
+"""The attitude service over real processes and a real Zenoh router (issue 7).
+
+* End to end: the paper's scenario seen by a 9S15 radar (``scenarios/attitude_9s15.yaml``) through
+  ``fixstream up router recorder player attitude-r1`` (the repository's compose.yaml, rate 0): the estimates and
+  diagnostics read back from the MCAP equal, message for message (header included), what the service built as
+  ``build()`` builds it (from the compose file's environment) gives from ``run_offline`` on the same scenario
+  events framed by the player's markers, and the core in-process on the same seed.
+* Bad input over a real router: every case of the issue on the wire to a ``fixstream run attitude`` process
+  (NaN and inf, missing scans, a target id that changes, plots older than the last, near-zero speed, and the
+  transport's own cases); each is reported with its reason, the service stays alive, its status counters add
+  up, and its outputs equal those of its offline twin fed the same bytes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+from collections import Counter, defaultdict
+from pathlib import Path
+
+import pytest
+import zenoh
+from conftest import REPO, fixstream_cmd, service_env, wait_until
+from test_attitude_service import (
+    DIAG_KEY,
+    RADAR_KEY,
+    all_events,
+    assert_estimate_sane,
+    build_scenario,
+    core_outputs,
+    framed,
+    inputs_of,
+    los_errors,
+    make_service,
+    on_key,
+    plot_of,
+    raw,
+    truths_of,
+    without_source_seq,
+)
+
+from schemas import Diagnostic, Message, RadarPlot, ScenarioMarker, Truth
+from schemas.attitude import AttitudeEstimate
+from services.attitude import service as attitude_service
+from services.player.scenario import load_scenario
+from services.player.timeline import marker
+from shared import codec, keys
+from shared.mcap_io import decode_record, iter_records, recording_files
+from shared.session import open_session
+from shared.settings import ZenohSettings
+from shared.stack import load_compose
+
+pytestmark = pytest.mark.e2e
+
+COMPOSE = REPO / "compose.yaml"
+SERVICE = "attitude-r1"
+SCENARIO = REPO / "scenarios" / "attitude_9s15.yaml"
+
+
+def _recorded(out_dir: Path) -> dict[str, list[Message]]:
+    by_topic: dict[str, list[Message]] = defaultdict(list)
+    files = recording_files(out_dir)
+    assert files, f"no MCAP in {out_dir}"
+    for f in files:
+        for rec in iter_records(f):
+            by_topic[rec.topic].append(decode_record(rec))
+    return dict(by_topic)
+
+
+def test_stack_gives_the_offline_and_in_process_estimates(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    recordings = tmp_path / "recordings"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("FIXSTREAM_")}
+    env.update({"FIXSTREAM_SCENARIO": str(SCENARIO), "FIXSTREAM_RATE": "0"})
+    cmd = ["up", "-f", str(COMPOSE), "router", "recorder", "player", SERVICE, "--recordings", str(recordings)]
+    proc = subprocess.run(
+        fixstream_cmd(*cmd, "--no-color"), cwd=tmp_path, env=env, capture_output=True, text=True, timeout=150
+    )
+    log = proc.stdout + proc.stderr
+    assert proc.returncode == 0, log[-5000:]
+    assert f"[up] {SERVICE} ready: fixstream/alive/attitude/r1" in log
+    # the player waited for the service (the scenario's wait_for) before publishing
+    assert any(
+        "fixstream.player: alive:" in line and "fixstream/alive/attitude/r1" in line for line in log.splitlines()
+    )
+    got = _recorded(recordings)
+
+    # the offline twin, built as build() builds it from the compose file's environment of the service
+    for name in [k for k in os.environ if k.startswith("FIXSTREAM_")]:
+        monkeypatch.delenv(name)
+    for name, value in load_compose(COMPOSE, environ=env).services[SERVICE].environment.items():
+        monkeypatch.setenv(name, value)
+    svc = attitude_service.build()
+    scenario = load_scenario(SCENARIO)
+    events = all_events(scenario)
+    feed = framed(scenario, inputs_of(svc, events))
+    offline = svc.run_offline(feed)
+
+    fix_key = "fixstream/fix/attitude/r1/ac1"
+    fixes = got.get(fix_key, [])
+    assert len(fixes) == 100
+    assert fixes == on_key(offline, fix_key)  # message for message, headers included
+    assert got.get(DIAG_KEY, []) == on_key(offline, DIAG_KEY)  # the one new_target report
+    assert [m.reason for m in got[DIAG_KEY]] == ["new_target"]  # type: ignore[attr-defined]
+    assert {k for k in got if k.startswith("fixstream/fix/")} == {fix_key}
+    # the same estimates as the core in-process on the same seed
+    assert without_source_seq(fixes) == without_source_seq(core_outputs(feed[1:-1]))
+    # everything the player published was recorded, and it is the scenario's events
+    assert got[RADAR_KEY] == [m for k, m in events if k == RADAR_KEY]
+    assert got["fixstream/truth/ac1"] == [m for k, m in events if k == "fixstream/truth/ac1"]
+    # scored against the recorded truth: converged, and the errors of one run within 4 sigma
+    truth = {m.header.stamp_ns: m for m in got["fixstream/truth/ac1"] if isinstance(m, Truth)}
+    valid = [f for f in fixes if isinstance(f, AttitudeEstimate) and f.status == "VALID"]
+    assert len(valid) >= 50
+    for f in valid:
+        assert_estimate_sane(f)
+        errs = los_errors(f, truth[f.header.stamp_ns])
+        sig = (f.sigma_psi_los_deg, f.sigma_theta_los_deg, f.sigma_gamma_los_deg)
+        assert all(abs(e) <= 4.0 * s for e, s in zip(errs.values(), sig, strict=True)), (f.header.stamp_ns, errs, sig)
+
+
+def test_bad_input_over_a_real_router(router: str) -> None:
+    slow = {
+        "id": "slow",
+        "start": {
+            "range_m": 15000.0,
+            "azimuth_deg": 40.0,
+            "altitude_m": 1500.0,
+            "heading_deg": 100.0,
+            "speed_mps": 150.0,
+        },
+        "segments": [{"duration_s": 150.0}, {"duration_s": 147.0, "accel_mps2": -1.0}],
+        "phase_s": 3.0,
+    }
+    targets = [
+        {"id": "a", "plan": "paper", "missed_scans": [30, 31, 50, 51, 52, 53]},  # a short gap, then a long one
+        {"id": "b", "plan": "paper", "phase_s": 1.5},  # its id changes at t = 200 s
+        slow,  # near-zero speed from t = 290 s
+    ]
+    sc = build_scenario(targets, duration_s=400.0)
+    twin = make_service(instance="bad1", site_id="r1")
+    feed = inputs_of(twin, all_events(sc))
+    diag_key = keys.diag("attitude", "bad1")
+    a20 = plot_of(feed, "a", 20)
+    items: list[tuple[str, bytes, str]] = []
+    expected: Counter[str] = Counter()
+    for key, msg in feed:
+        if isinstance(msg, RadarPlot) and msg.target_id == "b" and msg.header.stamp_ns >= 200e9:
+            msg = msg.model_copy(update={"target_id": "b2"})  # the radar renumbered the track
+        items.append(raw(key, msg))
+        if msg is a20:
+            later = msg.header.model_copy(update={"stamp_ns": msg.header.stamp_ns + 10**8})
+            items.append(raw(key, RadarPlot.model_construct(**{**dict(msg), "header": later, "range_m": math.nan})))
+            items.append(raw(key, RadarPlot.model_construct(**{**dict(msg), "header": later, "el_deg": math.inf})))
+            expected["non_finite"] += 2
+            items.append(raw(key, plot_of(feed, "a", 12)))  # a plot older than the last one
+            expected["out_of_order"] += 1
+            items.append(raw(key, msg))  # the same plot again
+            expected["duplicate_time"] += 1
+            items.append((key, b"\x93\x01\x02\x03", codec.encoding_of(RadarPlot)))  # [1, 2, 3], not an object
+            expected["wrong_type"] += 1
+            items.append((key, b"\xc1", codec.encoding_of(RadarPlot)))  # not msgpack
+            expected["bad_msgpack"] += 1
+            items.append(raw(key, Truth(header=later, platform="a", position_m=[0.0, 0.0, 0.0])))
+            expected["unexpected_type"] += 1
+            items.append(raw(key, msg.model_copy(update={"header": later, "target_id": "a*"})))
+            expected["invalid_target_id"] += 1
+            items.append(raw(key, msg.model_copy(update={"header": later, "range_m": msg.range_m + 8000.0})))
+            expected["innovation_gate"] += 1
+    published = Counter(key for key, _, _ in items)  # as the player's end marker counts them
+    end = marker(sc, sc.seed, "end", feed[-1][1].header.stamp_ns, 1, published=dict(published))
+    items.append((keys.scenario(sc.name), codec.encode(end), codec.encoding_of(ScenarioMarker)))
+
+    # the offline twin on exactly these bytes
+    twin.run_offline([])
+    for key, payload, encoding in items:
+        twin.process(key, payload, encoding, rx_time_ns=0)
+    offline = twin.outbox
+    off_diags = [o.msg for o in offline if isinstance(o.msg, Diagnostic)]
+    off_reasons = Counter(d.reason for d in off_diags)
+    assert twin.counters.rejected_by_reason == expected
+    events = {r: n for r, n in off_reasons.items() if r not in expected}
+    assert events.pop("pitch_undefined", 0) <= 1  # slow, once its speed estimate falls below v_min (10 m/s)
+    assert events == {
+        "new_target": 4,  # a, b, slow, and b2 (the changed id)
+        "scans_missed": 1,
+        "gap_reset": 1,
+        "target_evicted": 1,  # b, 60 s after its last plot
+        "heading_undefined": 1,  # slow
+    }
+    assert twin.sessions == 2  # the end marker started a fresh core
+
+    proc = subprocess.Popen(
+        fixstream_cmd("run", "attitude"),
+        env=service_env(router, FIXSTREAM_ATTITUDE_INSTANCE="bad1", FIXSTREAM_ATTITUDE_SITE_ID="r1"),
+        cwd=REPO,
+        text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
+    client = open_session(ZenohSettings(mode="client", connect=[router]))
+    try:
+        received: dict[str, list[Message]] = defaultdict(list)
+
+        def keep(sample: zenoh.Sample) -> None:
+            received[str(sample.key_expr)].append(codec.decode(sample.payload.to_bytes(), str(sample.encoding)))
+
+        subs = [client.declare_subscriber(k, keep) for k in ("fixstream/fix/attitude/r1/*", diag_key)]
+        alive = keys.alive("attitude", "bad1")
+        assert wait_until(lambda: len(list(client.liveliness().get(alive, timeout=0.5))) == 1, timeout=30)
+        pubs: dict[str, zenoh.Publisher] = {}
+        for key, payload, encoding in items:
+            if key not in pubs:
+                pubs[key] = client.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+            pubs[key].put(payload, encoding=zenoh.Encoding(encoding))
+
+        n_out = {k: sum(o.key == k for o in offline) for k in {o.key for o in offline}}
+        assert wait_until(lambda: all(len(received[k]) == n for k, n in n_out.items()), timeout=60), {
+            k: (len(received[k]), n) for k, n in n_out.items()
+        }
+        # still alive, and its status adds up
+        assert proc.poll() is None
+        assert len(list(client.liveliness().get(alive, timeout=1.0))) == 1
+        status: dict = {}
+
+        def status_settled() -> bool:
+            replies = list(client.get(keys.status("attitude", "bad1"), timeout=5.0))
+            if len(replies) != 1 or replies[0].ok is None:
+                return False
+            status.update(json.loads(replies[0].ok.payload.to_bytes()))
+            return status["sessions"] == 2
+
+        assert wait_until(status_settled, timeout=20)
+        c = status["counters"]
+        assert c["received"] == len(items) == c["accepted"] + c["rejected"]
+        assert c["rejected_by_reason"] == dict(expected) and c["rejected"] == sum(expected.values())
+        assert status["events"] == dict(Counter(d.reason for d in off_diags if d.reason not in expected))
+        assert status["site_id"] == "r1" and status["targets"] == 0 and not status["end_pending"]
+        for s in subs:
+            s.undeclare()
+    finally:
+        client.close()
+        proc.terminate()
+        output, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 0, output[-3000:]
+    assert "internal_error" not in output and "Traceback" not in output
+
+    # the same outputs as the offline twin, message for message, and every case named with its key
+    for k in n_out:
+        assert received[k] == on_key(offline, k), k
+    diags = [d for d in received[diag_key] if isinstance(d, Diagnostic)]
+    assert Counter(d.reason for d in diags) == off_reasons
+    assert all(d.key == RADAR_KEY for d in diags)
+    # good plots after the bad ones still give sane estimates; the gated outlier did not move the state
+    a_fixes = [m for m in received["fixstream/fix/attitude/r1/a"] if isinstance(m, AttitudeEstimate)]
+    after = next(f for f in a_fixes if f.header.stamp_ns == round(100e9))  # the plot after the bad ones
+    assert after.flags[:3] == ["OUT_OF_ORDER_DROPPED", "DUPLICATE_DROPPED", "GATE_REJECTED"]
+    for f in received["fixstream/fix/attitude/r1/a"] + received["fixstream/fix/attitude/r1/slow"]:
+        assert isinstance(f, AttitudeEstimate)
+        assert_estimate_sane(f)
+    truth = truths_of(all_events(sc), "a")
+    for f in a_fixes:
+        if f.status == "VALID":
+            errs = los_errors(f, truth[f.header.stamp_ns])
+            sig = (f.sigma_psi_los_deg, f.sigma_theta_los_deg, f.sigma_gamma_los_deg)
+            assert all(abs(e) <= 4.0 * s for e, s in zip(errs.values(), sig, strict=True)), f.header.stamp_ns
