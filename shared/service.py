@@ -7,10 +7,21 @@ handler (which calls a pure core), and publishes what the handler returns. Aroun
 * declares a liveliness token ``fixstream/alive/<service>/<instance>``,
 * answers the queryable ``fixstream/status/<service>/<instance>`` (counters, last error, config),
 * stamps ``header.source`` and a per-key ``header.seq`` on everything it publishes,
+* ends a scenario run once every message the player announced has arrived (below),
 * shuts down cleanly on SIGTERM/SIGINT.
 
 Samples are queued by Zenoh's callback threads and processed by one thread in arrival order, so a
 service is deterministic for a given input order (architecture rule 1).
+
+**End of a scenario.** Zenoh keeps one publisher's order per subscription, but each subscription is
+delivered on its own thread, so the player's end marker (on ``fixstream/scenario/<name>``) can overtake
+the last data. The marker carries the number of messages the player published per key; the base counts
+what arrives on every key the service subscribes to and calls :meth:`Service.on_scenario_end` only once
+every announced message on those keys has arrived — after the sample that completes the count, whatever
+that sample's fate (accepted or rejected). If some never arrive, the run ends anyway ``end_wait_s`` of
+wall time after the last counted sample, at the next start marker, or at shutdown (logged and counted as
+``incomplete`` in the status); :meth:`Service.run_offline` ends it after its last event. Services therefore
+implement ``on_scenario_end`` as a plain flush.
 """
 
 from __future__ import annotations
@@ -86,6 +97,14 @@ class Counters:
         }
 
 
+@dataclass
+class _PendingEnd:
+    """An end marker waiting for the messages it announced on the service's keys."""
+
+    marker: ScenarioMarker
+    expected: dict[str, int]
+
+
 class _DiagLimiter:
     """Token bucket per reason so a flood of bad input cannot flood the diag key (counts are kept)."""
 
@@ -136,14 +155,25 @@ class Service:
         self.outbox: list[Output] = []
         self.started_at = time.time()
         self.rx_time_ns = 0
+        #: samples arrived per subscribed data key and not yet consumed by an end of scenario
+        self._arrived: Counter[str] = Counter()
+        self._last_arrival = time.monotonic()
+        self._pending_end: _PendingEnd | None = None
+        #: ends of scenario runs: "complete" (every announced message arrived) or "incomplete"
+        self.scenario_ends: Counter[str] = Counter()
 
     # ----- to override ------------------------------------------------------------------------
     def subscriptions(self) -> list[Subscription]:
         """The key expressions this service listens to."""
         return []
 
+    def on_scenario_start(self, marker: ScenarioMarker) -> Iterable[Output]:
+        """Called when the player's start marker arrives (after ending a previous run still pending)."""
+        return ()
+
     def on_scenario_end(self, marker: ScenarioMarker) -> Iterable[Output]:
-        """Called when the player's end marker arrives: flush buffered state."""
+        """Called once every message the player's end marker announced on this service's keys has arrived
+        (or could not be waited for any longer): flush buffered state."""
         return ()
 
     def on_idle(self) -> Iterable[Output]:
@@ -166,6 +196,7 @@ class Service:
             "queue_depth": self._queue.qsize(),
             "counters": self.counters.as_dict(),
             "diag_suppressed": self.diag_suppressed,
+            "scenario": {"end_pending": self._pending_end is not None, "ends": dict(self.scenario_ends)},
             "config": self.settings.model_dump(mode="json"),
             **self.status_extra(),
         }
@@ -218,7 +249,14 @@ class Service:
         c.last_error = f"{reason}: {detail}" if detail else reason
         c.last_error_key = key
         log.debug("%s rejected %s on %s: %s", self.source, reason, key, detail)
-        self.report(key, reason, detail, count=c.rejected_by_reason[reason], counts=dict(c.rejected_by_reason))
+        self.report(
+            key,
+            reason,
+            detail,
+            count=c.rejected_by_reason[reason],
+            counts=dict(c.rejected_by_reason),
+            stamp_ns=stamp_ns,
+        )
 
     def report(
         self,
@@ -260,6 +298,7 @@ class Service:
         start = len(self.outbox)
         for key, msg in events:
             self.process(key, codec.encode(msg), codec.encoding_of(type(msg)), rx_time_ns=0)
+        self._end_scenario(force=True)  # nothing more will arrive
         return self.outbox[start:]
 
     def process(self, key: str, payload: bytes, encoding: str, rx_time_ns: int | None = None) -> None:
@@ -271,34 +310,93 @@ class Service:
         self.rx_time_ns = rx_time_ns if rx_time_ns is not None else time.time_ns()
         self.counters.received += 1
         sub = self._match(key)
+        counted = sub is not None and not _is_scenario_key(key)
+        if counted:
+            self._arrived[key] += 1
+            self._last_arrival = time.monotonic()
+        outputs = self._dispatch(key, payload, encoding, sub)
+        if outputs is not None:
+            self.counters.accepted += 1
+            self._publish_all(outputs)
+        if counted and self._pending_end is not None:
+            self._end_scenario(force=False)
+
+    def _dispatch(self, key: str, payload: bytes, encoding: str, sub: Subscription | None) -> Iterable[Output] | None:
+        """The handler's outputs (``()`` if none), or None when the sample was rejected (and reported)."""
         try:
             if sub is not None and sub.raw_handler is not None:
-                outputs = sub.raw_handler(key, payload, encoding)
-            else:
-                msg = codec.decode(payload, encoding)
-                if isinstance(msg, ScenarioMarker):
-                    outputs = self.on_scenario_end(msg) if msg.event == "end" else ()
-                else:
-                    if sub is None or sub.handler is None:
-                        raise InputRejected("no_handler", f"nothing handles {key}")
-                    if sub.accepts and not isinstance(msg, sub.accepts):
-                        allowed = ", ".join(m.__name__ for m in sub.accepts)
-                        raise InputRejected("unexpected_type", f"{type(msg).__name__} on {key}; expects {allowed}")
-                    if sub.monotonic:
-                        self._check_monotonic(key, msg)
-                    outputs = sub.handler(key, msg)
+                return sub.raw_handler(key, payload, encoding) or ()
+            msg = codec.decode(payload, encoding)
+            if isinstance(msg, ScenarioMarker):
+                return self._on_marker(msg)
+            if sub is None or sub.handler is None:
+                raise InputRejected("no_handler", f"nothing handles {key}")
+            if sub.accepts and not isinstance(msg, sub.accepts):
+                allowed = ", ".join(m.__name__ for m in sub.accepts)
+                raise InputRejected("unexpected_type", f"{type(msg).__name__} on {key}; expects {allowed}")
+            if sub.monotonic:
+                self._check_monotonic(key, msg)
+            return sub.handler(key, msg) or ()
         except codec.DecodeError as exc:
             self.reject(key, exc.reason, exc.detail)
-            return
         except InputRejected as exc:
             self.reject(key, exc.reason, exc.detail)
-            return
         except Exception as exc:  # a bug must not kill the service; it is reported like bad input
             log.error("%s: handler failed on %s:\n%s", self.source, key, traceback.format_exc())
             self.reject(key, "internal_error", f"{type(exc).__name__}: {exc}")
-            return
-        self.counters.accepted += 1
-        for out in outputs or ():
+        return None
+
+    def _on_marker(self, marker: ScenarioMarker) -> list[Output]:
+        """A start marker ends a run still pending; an end marker waits for what it announced (module doc)."""
+        if marker.event == "start":
+            out = self._end_scenario(force=True, publish=False) if self._pending_end is not None else []
+            return out + list(self.on_scenario_start(marker) or ())
+        if self._pending_end is not None:  # two end markers in a row: the first run is over
+            self._end_scenario(force=True)
+        expected = {
+            k: n
+            for k, n in marker.published.items()
+            if n > 0 and not _is_scenario_key(k) and self._match(k) is not None
+        }
+        self._pending_end = _PendingEnd(marker, expected)
+        return self._end_scenario(force=False, publish=False)
+
+    def _end_scenario(self, force: bool, publish: bool = True) -> list[Output]:
+        """End the pending run if every announced message has arrived (or ``force``); publish or return its
+        outputs. The counts it announced are consumed, so early samples of the next run keep theirs."""
+        pending = self._pending_end
+        if pending is None:
+            return []
+        missing = sum(max(n - self._arrived[k], 0) for k, n in pending.expected.items())
+        if missing and not force:
+            return []
+        self._pending_end = None
+        for k, n in pending.expected.items():
+            left = self._arrived[k] - n
+            if left > 0:
+                self._arrived[k] = left
+            else:
+                del self._arrived[k]
+        if missing:
+            self.scenario_ends["incomplete"] += 1
+            log.warning("%s: scenario %s ended with %d messages missing", self.source, pending.marker.scenario, missing)
+        else:
+            self.scenario_ends["complete"] += 1
+        try:
+            outputs = list(self.on_scenario_end(pending.marker) or ())
+        except Exception as exc:
+            log.error("%s: on_scenario_end failed:\n%s", self.source, traceback.format_exc())
+            self.reject(
+                f"{keys.ROOT}/scenario/{pending.marker.scenario}", "internal_error", f"{type(exc).__name__}: {exc}"
+            )
+            outputs = []
+        if publish:
+            self._publish_all(outputs)
+            return []
+        return outputs
+
+    def _publish_all(self, outputs: Iterable[Output]) -> None:
+        for out in outputs:
             self.publish(out.key, out.msg)
 
     # ----- internals ---------------------------------------------------------------------------
@@ -358,6 +456,9 @@ class Service:
                 self._idle()
 
     def _idle(self) -> None:
+        pending = self._pending_end
+        if pending is not None and time.monotonic() - self._last_arrival > self.settings.end_wait_s:
+            self._end_scenario(force=True)
         try:
             for out in self.on_idle():
                 self.publish(out.key, out.msg)
@@ -381,6 +482,7 @@ class Service:
                 d.undeclare()
         try:
             self._drain()
+            self._end_scenario(force=True)
             self.on_stop()
         finally:
             for d in reversed(self._declared):
@@ -394,3 +496,10 @@ class Service:
             if self.session is not None:
                 self.session.close()
             log.info("%s: stopped", self.source)
+
+
+def _is_scenario_key(key: str) -> bool:
+    return key.startswith(_SCENARIO_PREFIX)
+
+
+_SCENARIO_PREFIX = f"{keys.ROOT}/scenario/"

@@ -61,6 +61,12 @@ class ServiceSettings(BaseSettings):
 
     instance: str = Field(default="default", description="instance name, the last chunk of its keys")
     queue_size: int = Field(default=100_000, ge=1, description="inbound samples held before back-pressure")
+    end_wait_s: float = Field(
+        default=5.0,
+        ge=0.0,
+        description="wall time the end of a scenario waits, after the last counted sample, for messages its end"
+        " marker announced but which have not arrived (lost, or the publisher died), s",
+    )
 
     @classmethod
     def load(cls, **overrides: Any) -> ServiceSettings:

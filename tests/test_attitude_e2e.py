@@ -236,7 +236,7 @@ def test_bad_input_over_a_real_router(router: str) -> None:
         assert c["received"] == len(items) == c["accepted"] + c["rejected"]
         assert c["rejected_by_reason"] == dict(expected) and c["rejected"] == sum(expected.values())
         assert status["events"] == dict(Counter(d.reason for d in off_diags if d.reason not in expected))
-        assert status["site_id"] == "r1" and status["targets"] == 0 and not status["end_pending"]
+        assert status["site_id"] == "r1" and status["targets"] == 0 and not status["scenario"]["end_pending"]
         for s in subs:
             s.undeclare()
     finally:

@@ -30,7 +30,7 @@ from services.terrain_nav.maps import load_npy
 from services.terrain_nav.metrics import TruthTrack, fix_errors_cells
 from services.terrain_nav.resampler import CellMeasurement
 from services.terrain_nav.service import ReorderBuffer, TerrainNavService, TerrainNavSettings
-from shared import keys
+from shared import codec, keys
 from shared.service import InputRejected, Output
 
 REPO = Path(__file__).resolve().parent.parent
@@ -405,14 +405,18 @@ def test_an_end_marker_that_overtakes_the_data_waits_for_it(clean_run: tuple[Fee
     assert on_key(out, VERDICT_KEY) == on_key(clean_out, VERDICT_KEY)  # RESET last, after all the data
     assert on_key(out, FIX_KEY) == on_key(clean_out, FIX_KEY)
     assert svc.sessions == 2 and not diags(out)
-    # a marker whose messages never all arrive ends the session when stopping (or after idle_flush_s)
+    assert svc.status()["scenario"] == {"end_pending": False, "ends": {"complete": 1}}
+    # a marker whose messages never all arrive: the run waits, then ends anyway (offline: after the last event;
+    # online: end_wait_s after the last sample, at the next start marker or when stopping), counted incomplete
     svc = make_service()
-    part = svc.run_offline([*feed[:-40], feed[-1]])
-    assert svc.sessions == 1 and len(svc.buffer) > 0
-    svc.on_stop()  # offline, what it publishes goes to the outbox
-    stopped = svc.outbox[len(part) :]
-    last = on_key(stopped, VERDICT_KEY)[-1]
-    assert isinstance(last, TerrainVerdict) and last.state == "RESET" and svc.events["end_incomplete"] == 1
+    svc._subs = svc.subscriptions()  # what run_offline does, without its final end of input
+    for key, msg in [*feed[:-40], feed[-1]]:
+        svc.process(key, codec.encode(msg), codec.encoding_of(type(msg)))
+    assert svc.sessions == 1 and len(svc.buffer) > 0 and svc.status()["scenario"]["end_pending"]
+    part = svc.run_offline([])
+    last = on_key(part, VERDICT_KEY)[-1]
+    assert isinstance(last, TerrainVerdict) and last.state == "RESET"
+    assert svc.status()["scenario"] == {"end_pending": False, "ends": {"incomplete": 1}}
     assert len(svc.buffer) == 0 and svc.sessions == 2
 
 

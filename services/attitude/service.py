@@ -29,7 +29,7 @@ id the site has no state for, e.g. an id that changed) and ``target_evicted`` (i
 **End of a scenario.** The player's end marker (another key, so it may overtake the last plots) carries the
 number of messages published per key; once that many have arrived on this site's keys the service starts a
 fresh core (``reset_on_scenario_end``), so a following scenario whose stamps start again from 0 is accepted.
-``idle_flush_s`` of wall-clock quiet ends a scenario whose messages did not all arrive.
+(The ``Service`` base waits for the announced messages; ``end_wait_s`` of quiet ends the run anyway.)
 
 Deterministic: the outputs depend only on the order of the inputs (time comes from the stamps), and equal what
 :class:`AttitudeCore` gives in-process on the same messages.
@@ -38,7 +38,6 @@ Deterministic: the outputs depend only on the order of the inputs (time comes fr
 from __future__ import annotations
 
 import logging
-import time
 from collections import Counter
 from typing import Any, ClassVar, Literal, cast
 
@@ -121,9 +120,6 @@ class AttitudeSettings(ServiceSettings, AttitudeConfig):
     )
     sensor_id: str = Field(default="*", description="radar sensor id (last key chunk) to listen to, or *")
     reset_on_scenario_end: bool = Field(default=True, description="start a fresh core after the player's end marker")
-    idle_flush_s: float = Field(
-        default=2.0, ge=0.0, description="end a scenario whose messages did not all arrive after this quiet, s"
-    )
     report_events: bool = Field(default=True, description="report the events (resets, new targets, ...) on diag")
 
     @field_validator("sensor_id")
@@ -155,13 +151,9 @@ class AttitudeService(Service):
         self.core_config = settings.core_config(self.site_id)
         self.core = AttitudeCore(self.core_config)
         self.in_key = input_key(self.site_id, settings.sensor_id)
-        self._prefix = f"{keys.ROOT}/sensor/{self.site_id}/radar/"
         #: per target with state: its output key and the flags of its last estimate (for the events)
         self._targets: dict[str, _TargetInfo] = {}
         self._evicted_seen = 0
-        self._arrived: Counter[str] = Counter()
-        self._end: tuple[ScenarioMarker, dict[str, int]] | None = None
-        self._last_input_wall = time.monotonic()
         self.events: Counter[str] = Counter()
         self.outputs = 0
         self.sessions = 1
@@ -172,8 +164,6 @@ class AttitudeService(Service):
 
     def on_sample(self, key: str, payload: bytes, encoding: str) -> list[Output]:
         """One sample of the site: decode (the base reports a DecodeError), check, run the core."""
-        self._arrived[key] += 1
-        self._last_input_wall = time.monotonic()
         msg = codec.decode(payload, encoding)
         if not isinstance(msg, _INPUTS):
             allowed = ", ".join(m.__name__ for m in _INPUTS)
@@ -189,21 +179,17 @@ class AttitudeService(Service):
                 self._event(key, "new_target", f"{msg.target_id}: first plot at {msg.header.stamp_ns} ns", "info", msg)
         out = [self._output(key, est) for est in produced]
         self._check_evictions(key, msg.header.stamp_ns)
-        return out + self._finish_if_complete()
+        return out
 
     def on_scenario_end(self, marker: ScenarioMarker) -> list[Output]:
-        """Wait for the messages the marker counts on this site's keys, then start a fresh core."""
-        expected = {k: n for k, n in marker.published.items() if self._mine(k)}
-        self._end = (marker, expected)
-        return self._finish_if_complete()
-
-    def on_idle(self) -> list[Output]:
-        """Wall clock, never estimation: end a pending scenario once complete, or after ``idle_flush_s`` quiet."""
-        if self._end is None:
-            return []
-        quiet = time.monotonic() - self._last_input_wall
-        force = self.config.idle_flush_s > 0 and quiet >= self.config.idle_flush_s
-        return self._finish_if_complete(force=force)
+        """Every plot of the scenario has arrived (the base waits for them): start a fresh core."""
+        if self.config.reset_on_scenario_end:
+            self.core = AttitudeCore(self.core_config)
+            self._targets.clear()
+            self._evicted_seen = 0
+            self.sessions += 1
+            log.info("%s: scenario %s ended; fresh core (session %d)", self.source, marker.scenario, self.sessions)
+        return []
 
     def status_extra(self) -> dict[str, Any]:
         sigmas, scan_period_s = self.core.site_parameters(self.site_id)
@@ -217,16 +203,9 @@ class AttitudeService(Service):
             "events": dict(self.events),
             "outputs": self.outputs,
             "sessions": self.sessions,
-            "end_pending": self._end is not None,
         }
 
     # ----- internals -------------------------------------------------------------------------------------------
-    def _mine(self, key: str) -> bool:
-        if not key.startswith(self._prefix):
-            return False
-        sensor = key[len(self._prefix) :]
-        return "/" not in sensor and self.config.sensor_id in ("*", sensor)
-
     def _output(self, key: str, est: AttitudeEstimate) -> Output:
         tid = est.target_id
         info = self._targets.get(tid)
@@ -292,27 +271,6 @@ class AttitudeService(Service):
                     level="info",
                     stamp_ns=stamp_ns,
                 )
-
-    def _finish_if_complete(self, force: bool = False) -> list[Output]:
-        """End the scenario whose end marker came once every message it counts has arrived (or ``force``)."""
-        if self._end is None:
-            return []
-        marker, expected = self._end
-        missing = sum(max(n - self._arrived[k], 0) for k, n in expected.items())
-        if missing and not force:
-            return []
-        if missing:
-            self.events["end_incomplete"] += 1
-            log.warning("%s: scenario %s ended with %d messages missing", self.source, marker.scenario, missing)
-        self._end = None
-        if self.config.reset_on_scenario_end:
-            self.core = AttitudeCore(self.core_config)
-            self._targets.clear()
-            self._evicted_seen = 0
-            self._arrived.clear()
-            self.sessions += 1
-            log.info("%s: scenario %s ended; fresh core (session %d)", self.source, marker.scenario, self.sessions)
-        return []
 
 
 def build() -> AttitudeService:

@@ -6,8 +6,8 @@ the configured ``receiver_id`` / ``illuminator_id``):
 * in: ``fixstream/sensor/<rx>/pcl/<tx>``, :class:`~schemas.radar.BistaticScan` (one per scan, empty scans too)
   and :class:`~schemas.radar.BistaticConfigUpdate` (same key, so geometry changes keep their order);
 * out: ``fixstream/track/pcl/<rx>/<tx>``, one :class:`~schemas.pcl_tracker.PclScanReport` per processed scan;
-* ``fixstream/scenario/**``: the player's markers (the run ends when every scan the end marker announces
-  for our key has arrived);
+* ``fixstream/scenario/**``: the player's markers (the service base ends the run once every scan the end
+  marker announces for our key has arrived);
 * ``fixstream/diag/pcl_tracker/<instance>``, ``fixstream/status/pcl_tracker/<instance>`` and the liveliness
   token ``fixstream/alive/pcl_tracker/<instance>`` (service base).
 
@@ -27,10 +27,9 @@ Bad input (digest §5.6, architecture rule 5) never stops the service and never 
 
 Deterministic: outputs depend only on the order of the inputs on the input key (time comes from the
 stamps). The end of a player run flushes the reorder buffer and then starts a fresh tracker for the next
-run (track ids keep increasing, so an id is never reused within an instance). Zenoh orders each
-subscription's samples but not two subscriptions against each other, so the end marker can overtake the
-last scans; the run therefore ends once the number of messages the marker announces for our key has
-arrived (or at the next start marker, or ``END_WAIT_S`` of wall time later if some never arrive).
+run (track ids keep increasing, so an id is never reused within an instance). The end marker can overtake
+the last scans (another subscription); the ``Service`` base waits for the scans it announces (or
+``end_wait_s`` of quiet, or the next start marker) before calling :meth:`PclTrackerService.on_scenario_end`.
 """
 
 from __future__ import annotations
@@ -64,8 +63,6 @@ _PLOT_FLAGS_INFO = {"low_rb", "near_baseline", "sigma_defaulted"}
 #: scan flags already reported another way (a rejected message, or a plot flag)
 _FLAGS_REPORTED_ELSEWHERE = {"late_scan_dropped", "sigma_defaulted", "near_baseline"}
 _FLAGS_INFO = {"gap_coast"}
-#: wall time an end marker waits for the scans it announced before the run is finished anyway, s
-END_WAIT_S = 5.0
 
 
 def input_key(receiver_id: str, illuminator_id: str) -> str:
@@ -142,56 +139,16 @@ class PclTrackerService(Service):
         self.total_scan_cpu_ms = 0.0
         self.timed_scans = 0
         self.resets = 0
-        #: messages received on the input key in this run, and (published count, wall time) of an end marker
-        self._run_received = 0
-        self._pending_end: tuple[int, float] | None = None
         #: plots refused at decoding, per scan id, until that scan's report is published
         self._dropped_by_scan: dict[int, Counter[str]] = {}
 
     # ----- Service hooks ------------------------------------------------------------------------
     def subscriptions(self) -> list[Subscription]:
-        return [
-            Subscription(self.in_key, raw_handler=self._on_sample),
-            Subscription(f"{keys.ROOT}/scenario/**", raw_handler=self._on_marker),
-        ]
+        return [Subscription(self.in_key, raw_handler=self._on_input)]
 
     def on_scenario_end(self, marker: ScenarioMarker) -> Iterable[Output]:
-        """The player's end marker: finish the run once every scan it published on our key has arrived."""
-        self._pending_end = (marker.published.get(self.in_key, 0), time.monotonic())
-        return self._maybe_finish_run()
-
-    def on_idle(self) -> Iterable[Output]:
-        """Finish a run whose end marker came but some of its scans never did (lost, or started late)."""
-        if self._pending_end is not None and time.monotonic() - self._pending_end[1] > END_WAIT_S:
-            log.warning(
-                "%s: end of run with %d of %d scans received", self.source, self._run_received, self._pending_end[0]
-            )
-            return self._finish_run()
-        return ()
-
-    def _on_marker(self, key: str, payload: bytes, encoding: str) -> list[Output]:
-        marker = codec.decode(payload, encoding)
-        if not isinstance(marker, ScenarioMarker):
-            raise InputRejected("unexpected_type", f"{type(marker).__name__} on {key}; expects ScenarioMarker")
-        if marker.event == "end":
-            return list(self.on_scenario_end(marker))
-        # a new run starts: a previous run still waiting for scans that never came is finished now
-        return self._finish_run() if self._pending_end is not None else []
-
-    def _maybe_finish_run(self) -> list[Output]:
-        if self._pending_end is None or self._run_received < self._pending_end[0]:
-            return []
-        return self._finish_run()
-
-    def _finish_run(self) -> list[Output]:
-        """Flush the reorder buffer, then start a fresh tracker (ids keep increasing) for the next run.
-
-        Zenoh delivers each subscription's samples in order, but not the two subscriptions relative to
-        each other: the end marker may be queued before the last scans. The marker says how many messages
-        were published on our key, so the run ends when that many have arrived (see on_scenario_end).
-        """
-        self._pending_end = None
-        self._run_received = 0
+        """Every scan of the run has arrived (the base waits for them): flush the reorder buffer, then start a
+        fresh tracker (ids keep increasing) for the next run."""
         outputs = self._outputs(self.in_key, self.core.flush())
         next_id = self.core.next_track_id
         self.core = PclTracker(self.config)
@@ -231,16 +188,6 @@ class PclTrackerService(Service):
         }
 
     # ----- sample path --------------------------------------------------------------------------
-    def _on_sample(self, key: str, payload: bytes, encoding: str) -> list[Output]:
-        self._run_received += 1
-        try:
-            outputs = self._on_input(key, payload, encoding)
-        except Exception:
-            for out in self._maybe_finish_run():  # the run's last message was refused: the run still ends
-                self.publish(out.key, out.msg)
-            raise
-        return outputs + self._maybe_finish_run()
-
     def _on_input(self, key: str, payload: bytes, encoding: str) -> list[Output]:
         msg, dropped = self._decode(payload, encoding)
         if not isinstance(msg, BistaticScan | BistaticConfigUpdate):

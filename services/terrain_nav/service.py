@@ -24,11 +24,11 @@ reset, then arrival) and go to the core once the newest stamp seen is ``reorder_
 For input that arrives in that order (the player's) the core sees exactly that order, and the outputs
 equal those of the core run in-process on the same messages.
 
-**End of a scenario.** The player's end marker travels on another key (another subscriber, so it may
-overtake the last data); it carries the number of messages published per key, and the service waits until
-that many have arrived on its keys, then releases the buffer and, with ``reset_on_scenario_end``, starts a
-fresh session (a ``RESET`` verdict), so the next scenario's stamps, which start again from 0, are
-accepted. ``idle_flush_s`` of wall-clock quiet, and stopping, release what is left.
+**End of a scenario.** Once every message the player's end marker announced on the vehicle's keys has
+arrived (the ``Service`` base waits for them), the service releases the buffer and, with
+``reset_on_scenario_end``, starts a fresh session (a ``RESET`` verdict), so the next scenario's stamps,
+which start again from 0, are accepted. ``idle_flush_s`` of wall-clock quiet, and stopping, release what
+is left.
 
 **Counters.** The base's ``received = accepted + rejected`` holds: a buffered message counts as accepted
 until the core refuses it, which moves it to ``rejected`` under the core's reason. ``status_extra`` adds
@@ -194,8 +194,6 @@ class TerrainNavService(Service):
             RESET_KIND: settings.reset_sensor,
         }
         self._last_stamp: dict[str, int] = {}
-        self._arrived: Counter[str] = Counter()
-        self._end: tuple[ScenarioMarker, dict[str, int]] | None = None
         self._last_input_wall = time.monotonic()
         self.events: Counter[str] = Counter()
         self.outputs: Counter[str] = Counter()
@@ -207,21 +205,8 @@ class TerrainNavService(Service):
         return [Subscription(f"{self._prefix}**", raw_handler=self.on_sample)]
 
     def on_sample(self, key: str, payload: bytes, encoding: str) -> list[Output]:
-        """One sample of the vehicle: decode, check, buffer; plus a pending end of scenario once complete."""
-        self._arrived[key] += 1
+        """One sample of the vehicle: decode, check, buffer; returns what the released messages produced."""
         self._last_input_wall = time.monotonic()
-        try:
-            out = self._on_sample(key, payload, encoding)
-        except (InputRejected, codec.DecodeError) as exc:
-            if self._end is None:
-                raise
-            # the base would count it; report it here so that the end of the scenario can still follow
-            self.counters.accepted -= 1
-            self.reject(key, exc.reason, exc.detail)
-            out = []
-        return out + self._finish_if_complete()
-
-    def _on_sample(self, key: str, payload: bytes, encoding: str) -> list[Output]:
         parts = key.split("/")
         model = self._kinds.get(parts[3]) if len(parts) == 5 else None
         wanted = self._sensor_ids.get(parts[3], "*") if model is not None else ""
@@ -245,25 +230,22 @@ class TerrainNavService(Service):
         return self._release(self.buffer.pop_ready())
 
     def on_scenario_end(self, marker: ScenarioMarker) -> list[Output]:
-        """Wait for the messages the marker counts on this vehicle's keys, then end the session."""
-        expected = {k: n for k, n in marker.published.items() if k.startswith(self._prefix)}
-        self._end = (marker, expected)
-        return self._finish_if_complete()
+        """Every message of the scenario has arrived: release the buffer, then (by default) a new session."""
+        out = self._release(self.buffer.drain())
+        if self.config.reset_on_scenario_end:
+            out.extend(self._new_session(f"scenario {marker.scenario} ended"))
+        return out
 
     def on_idle(self) -> list[Output]:
-        """Wall-clock housekeeping: after ``idle_flush_s`` without input, release the buffer (and end a scenario
-        whose end marker came but whose messages did not all arrive)."""
+        """Wall-clock housekeeping: after ``idle_flush_s`` without input, release the buffer."""
         wait = self.config.idle_flush_s
         if wait <= 0 or time.monotonic() - self._last_input_wall < wait:
             return []
-        if self._end is not None:
-            return self._finish_if_complete(force=True)
         return self._release(self.buffer.drain()) if len(self.buffer) else []
 
     def on_stop(self) -> None:
-        """Stopping: what is still buffered (or a pending end of scenario) goes out before the session closes."""
-        outputs = self._finish_if_complete(force=True) if self._end is not None else self._release(self.buffer.drain())
-        for out in outputs:
+        """Stopping: what is still buffered goes out before the session closes."""
+        for out in self._release(self.buffer.drain()):
             self.publish(out.key, out.msg)
 
     def status_extra(self) -> dict[str, Any]:
@@ -321,24 +303,6 @@ class TerrainNavService(Service):
                 stamp_ns=v.header.stamp_ns,
             )
         return Output(self.verdict_key, v)
-
-    def _finish_if_complete(self, force: bool = False) -> list[Output]:
-        """End the scenario whose end marker came once every message it counts has arrived (or ``force``)."""
-        if self._end is None:
-            return []
-        marker, expected = self._end
-        if not force and any(self._arrived[k] < n for k, n in expected.items()):
-            return []
-        if force and any(self._arrived[k] < n for k, n in expected.items()):
-            missing = sum(max(n - self._arrived[k], 0) for k, n in expected.items())
-            self.events["end_incomplete"] += 1
-            log.warning("%s: scenario %s ended with %d messages missing", self.source, marker.scenario, missing)
-        self._end = None
-        self._arrived.clear()
-        out = self._release(self.buffer.drain())
-        if self.config.reset_on_scenario_end:
-            out.extend(self._new_session(f"scenario {marker.scenario} ended"))
-        return out
 
     def _new_session(self, reason: str) -> list[Output]:
         last_ns = self.buffer.released_ns or 0
