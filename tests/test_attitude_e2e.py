@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import subprocess
 from collections import Counter, defaultdict
 from pathlib import Path
@@ -23,6 +22,7 @@ from pathlib import Path
 import pytest
 import zenoh
 from conftest import REPO, fixstream_cmd, service_env, wait_until
+from stack_support import as_composed, player_waited_for, recorded_by_topic, run_up
 from test_attitude_service import (
     DIAG_KEY,
     RADAR_KEY,
@@ -47,51 +47,21 @@ from services.attitude import service as attitude_service
 from services.player.scenario import load_scenario
 from services.player.timeline import marker
 from shared import codec, keys
-from shared.mcap_io import decode_record, iter_records, recording_files
 from shared.session import open_session
 from shared.settings import ZenohSettings
-from shared.stack import load_compose
 
 pytestmark = pytest.mark.e2e
 
-COMPOSE = REPO / "compose.yaml"
 SERVICE = "attitude-r1"
 SCENARIO = REPO / "scenarios" / "attitude_9s15.yaml"
 
 
-def _recorded(out_dir: Path) -> dict[str, list[Message]]:
-    by_topic: dict[str, list[Message]] = defaultdict(list)
-    files = recording_files(out_dir)
-    assert files, f"no MCAP in {out_dir}"
-    for f in files:
-        for rec in iter_records(f):
-            by_topic[rec.topic].append(decode_record(rec))
-    return dict(by_topic)
-
-
 def test_stack_gives_the_offline_and_in_process_estimates(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    recordings = tmp_path / "recordings"
-    env = {k: v for k, v in os.environ.items() if not k.startswith("FIXSTREAM_")}
-    env.update({"FIXSTREAM_SCENARIO": str(SCENARIO), "FIXSTREAM_RATE": "0"})
-    cmd = ["up", "-f", str(COMPOSE), "router", "recorder", "player", SERVICE, "--recordings", str(recordings)]
-    proc = subprocess.run(
-        fixstream_cmd(*cmd, "--no-color"), cwd=tmp_path, env=env, capture_output=True, text=True, timeout=150
-    )
-    log = proc.stdout + proc.stderr
-    assert proc.returncode == 0, log[-5000:]
-    assert f"[up] {SERVICE} ready: fixstream/alive/attitude/r1" in log
-    # the player waited for the service (the scenario's wait_for) before publishing
-    assert any(
-        "fixstream.player: alive:" in line and "fixstream/alive/attitude/r1" in line for line in log.splitlines()
-    )
-    got = _recorded(recordings)
+    log, recordings = run_up(tmp_path, SCENARIO, [SERVICE], timeout_s=150)
+    assert player_waited_for(log, "fixstream/alive/attitude/r1")
+    got = recorded_by_topic(recordings)
 
-    # the offline twin, built as build() builds it from the compose file's environment of the service
-    for name in [k for k in os.environ if k.startswith("FIXSTREAM_")]:
-        monkeypatch.delenv(name)
-    for name, value in load_compose(COMPOSE, environ=env).services[SERVICE].environment.items():
-        monkeypatch.setenv(name, value)
-    svc = attitude_service.build()
+    svc = as_composed(monkeypatch, SERVICE, attitude_service.build, SCENARIO)
     scenario = load_scenario(SCENARIO)
     events = all_events(scenario)
     feed = framed(scenario, inputs_of(svc, events))

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import zenoh
 from pydantic import ValidationError
+from stack_support import framed
 
 from schemas import Diagnostic, Message, RadarPlot, ScenarioMarker, Truth
 from schemas.attitude import AttitudeEstimate
@@ -23,7 +24,7 @@ from services.attitude.mc import radar_frame_truth
 from services.attitude.metrics import truth_angles
 from services.attitude.service import AttitudeService, AttitudeSettings, input_key, output_key
 from services.player.scenario import Scenario
-from services.player.timeline import marker, scenario_events
+from services.player.timeline import scenario_events
 from shared import codec, keys
 from shared.errors import InputRejected
 from shared.service import Output
@@ -64,19 +65,6 @@ def inputs_of(svc: AttitudeService, events: Iterable[tuple[str, Message]]) -> Fe
 
 def all_events(scenario: Scenario, seed: int | None = None, run: int | None = None) -> Feed:
     return [(ev.key, ev.msg) for ev in scenario_events(scenario, seed, run=run)]
-
-
-def framed(scenario: Scenario, feed: Feed, seed: int | None = None) -> Feed:
-    """The feed between the player's start and end markers (the end marker counts the messages per key)."""
-    seed = scenario.seed if seed is None else seed
-    key = keys.scenario(scenario.name)
-    last = max((m.header.stamp_ns for _, m in feed), default=0)
-    counts = Counter(k for k, _ in feed)
-    return [
-        (key, marker(scenario, seed, "start", 0, 0)),
-        *feed,
-        (key, marker(scenario, seed, "end", last, 1, published=dict(counts))),
-    ]
 
 
 def on_key(outputs: Sequence[Output], key: str) -> list[Message]:

@@ -12,7 +12,6 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import threading
 from pathlib import Path
@@ -20,9 +19,9 @@ from typing import Any
 
 import numpy as np
 import pytest
-import yaml
 import zenoh
 from conftest import REPO, fixstream_cmd, service_env, wait_until
+from stack_support import as_composed, delivered, framed, recorded_by_topic, run_up, scenario_feed
 from test_pcl_tracker_service import (
     IN_KEY,
     OUT_KEY,
@@ -37,9 +36,7 @@ from schemas import Message
 from schemas.pcl_tracker import PclScanReport
 from services.pcl_tracker import service as service_mod
 from services.player.scenario import load_scenario
-from services.player.timeline import marker, scenario_events
 from shared import codec, keys
-from shared.mcap_io import decode_record, iter_records, recording_files
 from shared.session import open_session
 from shared.settings import ZenohSettings
 
@@ -49,68 +46,21 @@ SCENARIO = REPO / "scenarios" / "pcl_tracker_paper.yaml"
 STACK_SERVICE = "pcl_tracker-rx1-fm"
 
 
-def compose_environment(service: str) -> dict[str, str]:
-    spec = yaml.safe_load((REPO / "compose.yaml").read_text())["services"][service]
-    return {k: str(v) for k, v in spec["environment"].items() if k.startswith("FIXSTREAM_PCL_TRACKER_")}
-
-
 def offline_outputs(
     monkeypatch: pytest.MonkeyPatch, scenario_path: Path, stack_service: str
 ) -> dict[str, list[Message]]:
     """What a stack service publishes for the scenario, per key, computed without Zenoh."""
-    for k in list(os.environ):
-        if k.startswith("FIXSTREAM_"):
-            monkeypatch.delenv(k)
-    for k, v in compose_environment(stack_service).items():
-        monkeypatch.setenv(k, v)
-    svc = service_mod.from_environment()  # what build() does, without freezing this process's GC
+    # from_environment: what build() does, without freezing this process's GC
+    svc = as_composed(monkeypatch, stack_service, service_mod.from_environment, scenario_path)
     scenario = load_scenario(scenario_path)
-    events = scenario_events(scenario)
-    published: dict[str, int] = {}
-    for ev in events:
-        published[ev.key] = published.get(ev.key, 0) + 1
-    scenario_key = keys.scenario(scenario.name)
-    framed = [
-        (scenario_key, marker(scenario, scenario.seed, "start", 0, 0)),
-        *((ev.key, ev.msg) for ev in events),
-        (scenario_key, marker(scenario, scenario.seed, "end", events[-1].stamp_ns, 1, published=published)),
-    ]
-    subscribed = [zenoh.KeyExpr(s.key_expr) for s in svc.subscriptions()]
-    delivered = [(k, m) for k, m in framed if any(ke.intersects(zenoh.KeyExpr(k)) for ke in subscribed)]
     out: dict[str, list[Message]] = {}
-    for o in svc.run_offline(delivered):
+    for o in svc.run_offline(delivered(svc, framed(scenario, scenario_feed(scenario)))):
         out.setdefault(o.key, []).append(o.msg)
     return out
 
 
-def run_stack(tmp_path: Path, scenario: Path, services: list[str]) -> tuple[str, Path]:
-    recordings = tmp_path / "recordings"
-    env = {k: v for k, v in os.environ.items() if not k.startswith("FIXSTREAM_")}
-    env.update({"FIXSTREAM_SCENARIO": str(scenario), "FIXSTREAM_RATE": "0"})
-    cmd = ["up", "-f", str(REPO / "compose.yaml"), "--recordings", str(recordings), "--no-color"]
-    done = subprocess.run(
-        fixstream_cmd(*cmd, "router", "recorder", "player", *services),
-        cwd=tmp_path,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=180,
-    )
-    out = done.stdout + done.stderr
-    assert done.returncode == 0, out[-4000:]
-    return out, recordings
-
-
-def recorded_by_topic(recordings: Path) -> dict[str, list[Message]]:
-    by_topic: dict[str, list[Message]] = {}
-    for f in recording_files(recordings):
-        for rec in iter_records(f):
-            by_topic.setdefault(rec.topic, []).append(decode_record(rec))
-    return by_topic
-
-
 def test_e1_through_the_stack_equals_the_offline_service(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    out, recordings = run_stack(tmp_path, SCENARIO, [STACK_SERVICE])
+    out, recordings = run_up(tmp_path, SCENARIO, [STACK_SERVICE])
     assert f"[up] {STACK_SERVICE} ready: fixstream/alive/pcl_tracker/rx1-fm" in out
     by_topic = recorded_by_topic(recordings)
     recorded = by_topic[OUT_KEY]
@@ -136,7 +86,7 @@ def test_demo_with_two_instances_equals_the_offline_services(tmp_path: Path, mon
     """Two pairs, clutter, a turn and a late target; the end marker may overtake the last scans of both keys."""
     demo = REPO / "scenarios" / "pcl_tracker_demo.yaml"
     services = ["pcl_tracker-rx1-fm", "pcl_tracker-rx1-dvbt"]
-    _, recordings = run_stack(tmp_path, demo, services)
+    _, recordings = run_up(tmp_path, demo, services)
     by_topic = recorded_by_topic(recordings)
     for svc_name in services:
         for key, msgs in offline_outputs(monkeypatch, demo, svc_name).items():

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import subprocess
 from collections import Counter, defaultdict
 from pathlib import Path
@@ -20,6 +19,7 @@ from pathlib import Path
 import pytest
 import zenoh
 from conftest import REPO, fixstream_cmd, service_env, wait_until
+from stack_support import as_composed, player_waited_for, recorded_by_topic, run_up
 from test_terrain_nav_service import (
     FIX_KEY,
     INS_KEY,
@@ -44,64 +44,21 @@ from services.player.timeline import marker, scenario_events
 from services.terrain_nav import service as terrain_service
 from services.terrain_nav.service import TerrainNavService, TerrainNavSettings
 from shared import codec, keys
-from shared.mcap_io import decode_record, iter_records, recording_files
 from shared.session import open_session
 from shared.settings import ZenohSettings
-from shared.stack import load_compose
 
 pytestmark = pytest.mark.e2e
 
-COMPOSE = REPO / "compose.yaml"
 SERVICE = "terrain_nav-tan1"
-
-
-def _recorded(out_dir: Path) -> dict[str, list[Message]]:
-    by_topic: dict[str, list[Message]] = defaultdict(list)
-    files = recording_files(out_dir)
-    assert files, f"no MCAP in {out_dir}"
-    for f in files:
-        for rec in iter_records(f):
-            by_topic[rec.topic].append(decode_record(rec))
-    return dict(by_topic)
 
 
 def test_stack_gives_the_offline_and_in_process_fixes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     scenario_path = REPO / "scenarios" / "terrain_nav_informative.yaml"
-    recordings = tmp_path / "recordings"
-    env = {k: v for k, v in os.environ.items() if not k.startswith("FIXSTREAM_")}
-    env.update({"FIXSTREAM_SCENARIO": str(scenario_path), "FIXSTREAM_RATE": "0"})
-    proc = subprocess.run(
-        fixstream_cmd(
-            "up",
-            "-f",
-            str(COMPOSE),
-            "router",
-            "recorder",
-            "player",
-            SERVICE,
-            "--recordings",
-            str(recordings),
-            "--no-color",
-        ),
-        cwd=tmp_path,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    log = proc.stdout + proc.stderr
-    assert proc.returncode == 0, log[-5000:]
-    assert f"[up] {SERVICE} ready: fixstream/alive/terrain_nav/tan1" in log
-    # the player waited for the service (the scenario's wait_for) before publishing
-    assert any(
-        "fixstream.player: alive:" in line and "fixstream/alive/terrain_nav/tan1" in line for line in log.splitlines()
-    )
-    got = _recorded(recordings)
+    log, recordings = run_up(tmp_path, scenario_path, [SERVICE], timeout_s=120)
+    assert player_waited_for(log, "fixstream/alive/terrain_nav/tan1")
+    got = recorded_by_topic(recordings)
 
-    # the offline twin, built as build() builds it from the compose file's environment of the service
-    for name, value in load_compose(COMPOSE, environ=env).services[SERVICE].environment.items():
-        monkeypatch.setenv(name, value)
-    svc = terrain_service.build()
+    svc = as_composed(monkeypatch, SERVICE, terrain_service.build, scenario_path)
     scenario = load_scenario(scenario_path)
     feed = framed(scenario, scenario_feed(svc, scenario))
     offline = svc.run_offline(feed)

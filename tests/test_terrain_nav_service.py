@@ -18,11 +18,12 @@ import numpy as np
 import pytest
 import yaml
 import zenoh
+from stack_support import framed
 
 from schemas import Depth, Diagnostic, Header, InsSample, Message, NavReset, RadioAltimeter, Truth
 from schemas.terrain_nav import TerrainFix, TerrainVerdict
 from services.player.scenario import Scenario, load_scenario, parse_scenario
-from services.player.timeline import marker, scenario_events
+from services.player.timeline import scenario_events
 from services.terrain_nav import service as svc_module
 from services.terrain_nav.config import TerrainNavConfig
 from services.terrain_nav.core import TerrainNavigator
@@ -66,19 +67,6 @@ def inputs_of(svc: TerrainNavService, events: Iterable[tuple[str, Message]]) -> 
     """The (key, message) pairs the service's subscriptions receive, in order."""
     exprs = [zenoh.KeyExpr(s.key_expr) for s in svc.subscriptions()]
     return [(k, m) for k, m in events if any(e.intersects(zenoh.KeyExpr(k)) for e in exprs)]
-
-
-def framed(scenario: Scenario, feed: Feed, seed: int | None = None) -> Feed:
-    """The feed between the player's start and end markers."""
-    seed = scenario.seed if seed is None else seed
-    key = keys.scenario(scenario.name)
-    last = max((m.header.stamp_ns for _, m in feed), default=0)
-    counts = Counter(k for k, _ in feed)
-    return [
-        (key, marker(scenario, seed, "start", 0, 0)),
-        *feed,
-        (key, marker(scenario, seed, "end", last, 1, published=dict(counts))),
-    ]
 
 
 def scenario_feed(svc: TerrainNavService, scenario: Scenario, seed: int | None = None) -> Feed:
