@@ -2,7 +2,7 @@
 
 fixstream/sensor/<platform>/<kind>/<sensor_id>
 fixstream/truth/<platform>
-fixstream/fix/<estimator>/<platform>
+fixstream/fix/<estimator>/<platform>[/<sub>...]   (e.g. fix/attitude/<site>/<target>, fix/terrain_nav/<v>/verdict)
 fixstream/track/<tracker>/<track_id>
 fixstream/diag/<service>/<instance>
 fixstream/status/<service>/<instance>      (queryable)
@@ -37,8 +37,9 @@ def truth(platform: str) -> str:
     return _key("truth", platform)
 
 
-def fix(estimator: str, platform: str) -> str:
-    return _key("fix", estimator, platform)
+def fix(estimator: str, platform: str, *sub: str) -> str:
+    """An estimator's output for a platform, optionally below it (a target of a radar site, a verdict stream)."""
+    return _key("fix", estimator, platform, *sub)
 
 
 def track(tracker: str, *track_path: str) -> str:

@@ -34,7 +34,7 @@ import signal
 import threading
 import time
 import traceback
-from collections import Counter
+from collections import Counter, OrderedDict
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from types import FrameType
@@ -133,6 +133,8 @@ class Service:
     #: diagnostics per reason per second once the burst is spent (0: no limit)
     diag_rate_hz: ClassVar[float] = 50.0
     diag_burst: ClassVar[int] = 2000
+    #: declared publishers kept (least recently used beyond this are undeclared; a key's seq is kept regardless)
+    max_publishers: ClassVar[int] = 4096
 
     def __init__(self, settings: ServiceSettings, zenoh_settings: ZenohSettings | None = None) -> None:
         self.settings = settings
@@ -144,7 +146,7 @@ class Service:
         self._queue: queue.Queue[Any] = queue.Queue(maxsize=settings.queue_size)
         self._stop = threading.Event()
         self._seq: dict[str, int] = {}
-        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._publishers: OrderedDict[str, zenoh.Publisher] = OrderedDict()
         self._last_stamp: dict[str, int] = {}
         self._limiter = _DiagLimiter(self.diag_rate_hz, self.diag_burst)
         self.diag_suppressed = 0
@@ -236,8 +238,14 @@ class Service:
             return
         pub = self._publishers.get(key)
         if pub is None:
+            if len(self._publishers) >= self.max_publishers:
+                _, old = self._publishers.popitem(last=False)
+                with contextlib.suppress(Exception):
+                    old.undeclare()
             pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
             self._publishers[key] = pub
+        else:
+            self._publishers.move_to_end(key)
         pub.put(codec.encode(stamped), encoding=codec.zenoh_encoding(codec.encoding_of(type(msg))))
         self.counters.published += 1
 

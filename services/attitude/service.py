@@ -93,7 +93,7 @@ def input_key(site_id: str, sensor_id: str = "*") -> str:
 
 def output_key(site_id: str, target_id: str) -> str:
     """``fixstream/fix/attitude/<site>/<target>``."""
-    return f"{keys.fix(ESTIMATOR, site_id)}/{keys.chunk(target_id)}"
+    return keys.fix(ESTIMATOR, site_id, target_id)
 
 
 def _chunk_ok(value: str) -> bool:

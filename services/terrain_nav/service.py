@@ -178,7 +178,7 @@ class TerrainNavService(Service):
                 update={"derive_n_limits": False, "N_min": self.nav.N_min, "N_max": self.nav.N_max}
             )
         self.fix_key = keys.fix(ESTIMATOR, self.vehicle)
-        self.verdict_key = f"{self.fix_key}/{VERDICT_SUFFIX}"
+        self.verdict_key = keys.fix(ESTIMATOR, self.vehicle, VERDICT_SUFFIX)
         self.buffer = ReorderBuffer(round(settings.reorder_s * 1e9))
         self._prefix = f"{keys.ROOT}/sensor/{self.vehicle}/"
         self._kinds: dict[str, type[Message]] = {
