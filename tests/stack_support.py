@@ -8,23 +8,28 @@ included, what the same service, built as ``build()`` builds it from the compose
 
 from __future__ import annotations
 
+import contextlib
+import json
 import os
 import subprocess
-from collections import Counter
-from collections.abc import Callable, Iterable, Sequence
+import threading
+from collections import Counter, defaultdict
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import pytest
 import zenoh
-from conftest import REPO, fixstream_cmd
+from conftest import REPO, fixstream_cmd, service_env, wait_until
 
 from schemas import Message
 from services.player.scenario import Scenario
 from services.player.timeline import marker, scenario_events
-from shared import keys
+from shared import codec, keys
 from shared.mcap_io import decode_record, iter_records, recording_files
 from shared.service import Output, Service
+from shared.session import open_session
+from shared.settings import ZenohSettings
 from shared.stack import load_compose
 
 COMPOSE = REPO / "compose.yaml"
@@ -114,3 +119,96 @@ def as_composed(monkeypatch: pytest.MonkeyPatch, service: str, build: Callable[[
     for name, value in load_compose(COMPOSE, environ=stack_env(scenario)).services[service].environment.items():
         monkeypatch.setenv(name, value)
     return build()
+
+
+# --- one service process on a real router (the bad-input tests) ---------------------------------------------------
+
+
+class LiveService:
+    """A ``fixstream run <name>`` process on a router, and a client session that collects what it publishes."""
+
+    def __init__(self, router: str, name: str, instance: str, listen: Sequence[str], env: dict[str, str]) -> None:
+        self.name, self.instance = name, instance
+        self.diag_key = keys.diag(name, instance)
+        self.received: dict[str, list[Message]] = defaultdict(list)
+        self._lock = threading.Lock()
+        self._pubs: dict[str, zenoh.Publisher] = {}
+        self.proc = subprocess.Popen(
+            fixstream_cmd("run", name),
+            env=service_env(router, **env),
+            cwd=REPO,
+            text=True,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+        )
+        self.client = open_session(ZenohSettings(mode="client", connect=[router]))
+        self._subs = [self.client.declare_subscriber(k, self._keep) for k in (*listen, self.diag_key)]
+        self.output = ""
+
+    def _keep(self, sample: zenoh.Sample) -> None:
+        msg = codec.decode(sample.payload.to_bytes(), str(sample.encoding))
+        with self._lock:
+            self.received[str(sample.key_expr)].append(msg)
+
+    def count(self, key: str) -> int:
+        with self._lock:
+            return len(self.received[key])
+
+    def alive(self, timeout_s: float = 0.5) -> bool:
+        return len(list(self.client.liveliness().get(keys.alive(self.name, self.instance), timeout=timeout_s))) == 1
+
+    def put_raw(self, items: Iterable[tuple[str, bytes, str]]) -> None:
+        """Publish raw (key, payload, encoding) items in order, one blocking publisher per key."""
+        for key, payload, encoding in items:
+            pub = self._pubs.get(key)
+            if pub is None:
+                pub = self._pubs[key] = self.client.declare_publisher(
+                    key, congestion_control=zenoh.CongestionControl.BLOCK
+                )
+            pub.put(payload, encoding=zenoh.Encoding(encoding))
+
+    def status(self) -> dict[str, Any]:
+        replies = list(self.client.get(keys.status(self.name, self.instance), timeout=5.0))
+        assert len(replies) == 1 and replies[0].ok is not None, replies
+        return dict(json.loads(replies[0].ok.payload.to_bytes()))
+
+    def wait_status(self, settled: Callable[[dict[str, Any]], bool], timeout_s: float = 30) -> dict[str, Any]:
+        """The first status for which ``settled`` holds (fails after ``timeout_s``)."""
+        seen: dict[str, Any] = {}
+
+        def check() -> bool:
+            seen.clear()
+            seen.update(self.status())
+            return settled(seen)
+
+        assert wait_until(check, timeout=timeout_s), seen
+        return seen
+
+    def close(self) -> int:
+        """SIGTERM the service (it drains and exits 0), close the client; the process output is in ``output``."""
+        for s in self._subs:
+            with contextlib.suppress(Exception):
+                s.undeclare()
+        with contextlib.suppress(Exception):
+            self.client.close()
+        self.proc.terminate()
+        self.output, _ = self.proc.communicate(timeout=30)
+        return self.proc.returncode
+
+
+@contextlib.contextmanager
+def live_service(
+    router: str, name: str, instance: str, listen: Sequence[str] = (), **env: str
+) -> Iterator[LiveService]:
+    """``fixstream run <name>`` with ``env`` (its instance in ``FIXSTREAM_<NAME>_INSTANCE``), up and alive;
+    a client subscribed to ``listen`` and the service's diag key. On leaving, the service must exit cleanly
+    (code 0 after SIGTERM, no traceback, no internal error)."""
+    env = {f"FIXSTREAM_{name.upper()}_INSTANCE": instance, **env}
+    live = LiveService(router, name, instance, listen, env)
+    try:
+        assert wait_until(live.alive, timeout=60), f"{name}/{instance} did not come up"
+        yield live
+    finally:
+        code = live.close()
+    assert code == 0, live.output[-3000:]
+    assert "internal_error" not in live.output and "Traceback" not in live.output, live.output[-3000:]

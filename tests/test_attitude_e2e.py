@@ -13,16 +13,13 @@
 
 from __future__ import annotations
 
-import json
 import math
-import subprocess
-from collections import Counter, defaultdict
+from collections import Counter
 from pathlib import Path
 
 import pytest
-import zenoh
-from conftest import REPO, fixstream_cmd, service_env, wait_until
-from stack_support import as_composed, player_waited_for, recorded_by_topic, run_up
+from conftest import REPO, wait_until
+from stack_support import as_composed, live_service, player_waited_for, recorded_by_topic, run_up
 from test_attitude_service import (
     DIAG_KEY,
     RADAR_KEY,
@@ -41,14 +38,12 @@ from test_attitude_service import (
     without_source_seq,
 )
 
-from schemas import Diagnostic, Message, RadarPlot, ScenarioMarker, Truth
+from schemas import Diagnostic, RadarPlot, ScenarioMarker, Truth
 from schemas.attitude import AttitudeEstimate
 from services.attitude import service as attitude_service
 from services.player.scenario import load_scenario
 from services.player.timeline import marker
 from shared import codec, keys
-from shared.session import open_session
-from shared.settings import ZenohSettings
 
 pytestmark = pytest.mark.e2e
 
@@ -161,60 +156,22 @@ def test_bad_input_over_a_real_router(router: str) -> None:
     }
     assert twin.sessions == 2  # the end marker started a fresh core
 
-    proc = subprocess.Popen(
-        fixstream_cmd("run", "attitude"),
-        env=service_env(router, FIXSTREAM_ATTITUDE_INSTANCE="bad1", FIXSTREAM_ATTITUDE_SITE_ID="r1"),
-        cwd=REPO,
-        text=True,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-    )
-    client = open_session(ZenohSettings(mode="client", connect=[router]))
-    try:
-        received: dict[str, list[Message]] = defaultdict(list)
-
-        def keep(sample: zenoh.Sample) -> None:
-            received[str(sample.key_expr)].append(codec.decode(sample.payload.to_bytes(), str(sample.encoding)))
-
-        subs = [client.declare_subscriber(k, keep) for k in ("fixstream/fix/attitude/r1/*", diag_key)]
-        alive = keys.alive("attitude", "bad1")
-        assert wait_until(lambda: len(list(client.liveliness().get(alive, timeout=0.5))) == 1, timeout=30)
-        pubs: dict[str, zenoh.Publisher] = {}
-        for key, payload, encoding in items:
-            if key not in pubs:
-                pubs[key] = client.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
-            pubs[key].put(payload, encoding=zenoh.Encoding(encoding))
-
-        n_out = {k: sum(o.key == k for o in offline) for k in {o.key for o in offline}}
-        assert wait_until(lambda: all(len(received[k]) == n for k, n in n_out.items()), timeout=60), {
-            k: (len(received[k]), n) for k, n in n_out.items()
+    n_out = {k: sum(o.key == k for o in offline) for k in {o.key for o in offline}}
+    with live_service(
+        router, "attitude", "bad1", ["fixstream/fix/attitude/r1/*"], FIXSTREAM_ATTITUDE_SITE_ID="r1"
+    ) as live:
+        live.put_raw(items)
+        assert wait_until(lambda: all(live.count(k) == n for k, n in n_out.items()), timeout=60), {
+            k: (live.count(k), n) for k, n in n_out.items()
         }
-        # still alive, and its status adds up
-        assert proc.poll() is None
-        assert len(list(client.liveliness().get(alive, timeout=1.0))) == 1
-        status: dict = {}
-
-        def status_settled() -> bool:
-            replies = list(client.get(keys.status("attitude", "bad1"), timeout=5.0))
-            if len(replies) != 1 or replies[0].ok is None:
-                return False
-            status.update(json.loads(replies[0].ok.payload.to_bytes()))
-            return status["sessions"] == 2
-
-        assert wait_until(status_settled, timeout=20)
+        assert live.proc.poll() is None and live.alive(1.0)  # still alive, and its status adds up
+        status = live.wait_status(lambda st: st["sessions"] == 2, timeout_s=20)
         c = status["counters"]
         assert c["received"] == len(items) == c["accepted"] + c["rejected"]
         assert c["rejected_by_reason"] == dict(expected) and c["rejected"] == sum(expected.values())
         assert status["events"] == dict(Counter(d.reason for d in off_diags if d.reason not in expected))
         assert status["site_id"] == "r1" and status["targets"] == 0 and not status["scenario"]["end_pending"]
-        for s in subs:
-            s.undeclare()
-    finally:
-        client.close()
-        proc.terminate()
-        output, _ = proc.communicate(timeout=30)
-    assert proc.returncode == 0, output[-3000:]
-    assert "internal_error" not in output and "Traceback" not in output
+    received = live.received
 
     # the same outputs as the offline twin, message for message, and every case named with its key
     for k in n_out:

@@ -11,17 +11,12 @@
 
 from __future__ import annotations
 
-import json
-import subprocess
-import threading
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
-import zenoh
-from conftest import REPO, fixstream_cmd, service_env, wait_until
-from stack_support import as_composed, delivered, framed, recorded_by_topic, run_up, scenario_feed
+from conftest import REPO, wait_until
+from stack_support import as_composed, delivered, framed, live_service, recorded_by_topic, run_up, scenario_feed
 from test_pcl_tracker_service import (
     IN_KEY,
     OUT_KEY,
@@ -36,9 +31,6 @@ from schemas import Message
 from schemas.pcl_tracker import PclScanReport
 from services.pcl_tracker import service as service_mod
 from services.player.scenario import load_scenario
-from shared import codec, keys
-from shared.session import open_session
-from shared.settings import ZenohSettings
 
 pytestmark = pytest.mark.e2e
 
@@ -95,52 +87,22 @@ def test_demo_with_two_instances_equals_the_offline_services(tmp_path: Path, mon
     assert tracks == {"fixstream/track/pcl/rx1/tx-fm-98.1", "fixstream/track/pcl/rx1/tx-dvbt-530"}
 
 
-def _status(client: zenoh.Session, instance: str) -> dict[str, Any]:
-    replies = list(client.get(keys.status("pcl_tracker", instance), timeout=3.0))
-    assert len(replies) == 1 and replies[0].ok is not None
-    return json.loads(replies[0].ok.payload.to_bytes())  # type: ignore[no-any-return]
-
-
 def test_bad_input_over_a_real_router(router: str) -> None:
     instance = "bad"
     items = dirty_stream(clean_scans())
     expected_reports, expected_diags = run_items(make_service(instance), items)
 
-    client = open_session(ZenohSettings(mode="client", connect=[router]))
-    got: list[Message] = []
-    diags: list[Message] = []
-    lock = threading.Lock()
-
-    def collect(into: list[Message]) -> Any:
-        def cb(sample: zenoh.Sample) -> None:
-            with lock:
-                into.append(codec.decode(sample.payload.to_bytes(), str(sample.encoding)))
-
-        return cb
-
-    subs = [
-        client.declare_subscriber(OUT_KEY, collect(got)),
-        client.declare_subscriber(keys.diag("pcl_tracker", instance), collect(diags)),
-    ]
-    env = service_env(router, FIXSTREAM_PCL_TRACKER_INSTANCE=instance)
-    proc = subprocess.Popen(fixstream_cmd("run", "pcl_tracker"), env=env, cwd=REPO, text=True)
-    try:
-        alive = keys.alive("pcl_tracker", instance)
-        assert wait_until(lambda: len(list(client.liveliness().get(alive, timeout=0.5))) == 1, timeout=60)
-        pub = client.declare_publisher(IN_KEY, congestion_control=zenoh.CongestionControl.BLOCK)
-        for it in items:
-            pub.put(it.payload, encoding=zenoh.Encoding(it.encoding))
-        assert wait_until(lambda: _status(client, instance)["counters"]["received"] == len(items), timeout=60)
-        assert wait_until(lambda: len(got) == len(expected_reports) and len(diags) == len(expected_diags), timeout=30)
-        status = _status(client, instance)
-        assert proc.poll() is None  # still running after all of it
-    finally:
-        proc.terminate()
-        code = proc.wait(timeout=30)
-        for s in subs:
-            s.undeclare()
-        client.close()
-    assert code == 0
+    with live_service(router, "pcl_tracker", instance, [OUT_KEY]) as live:
+        live.put_raw((IN_KEY, it.payload, it.encoding) for it in items)
+        live.wait_status(lambda st: st["counters"]["received"] == len(items), timeout_s=60)
+        diag_key = live.diag_key
+        assert wait_until(
+            lambda: live.count(OUT_KEY) == len(expected_reports) and live.count(diag_key) == len(expected_diags),
+            timeout=30,
+        )
+        status = live.status()
+        assert live.proc.poll() is None  # still running after all of it
+    got, diags = live.received[OUT_KEY], live.received[diag_key]
 
     assert got == expected_reports  # message for message, as the offline run of the same input
     assert diags == expected_diags

@@ -10,16 +10,13 @@
 
 from __future__ import annotations
 
-import json
 import math
-import subprocess
-from collections import Counter, defaultdict
+from collections import Counter
 from pathlib import Path
 
 import pytest
-import zenoh
-from conftest import REPO, fixstream_cmd, service_env, wait_until
-from stack_support import as_composed, player_waited_for, recorded_by_topic, run_up
+from conftest import REPO, wait_until
+from stack_support import as_composed, live_service, player_waited_for, recorded_by_topic, run_up
 from test_terrain_nav_service import (
     FIX_KEY,
     INS_KEY,
@@ -44,8 +41,6 @@ from services.player.timeline import marker, scenario_events
 from services.terrain_nav import service as terrain_service
 from services.terrain_nav.service import TerrainNavService, TerrainNavSettings
 from shared import codec, keys
-from shared.session import open_session
-from shared.settings import ZenohSettings
 
 pytestmark = pytest.mark.e2e
 
@@ -138,56 +133,24 @@ def test_bad_input_over_a_real_router(router: str) -> None:
     expected["unsynchronised"] = off_reasons["unsynchronised"]
     assert twin.counters.rejected_by_reason == expected
 
-    proc = subprocess.Popen(
-        fixstream_cmd("run", "terrain_nav"),
-        env=service_env(router, **{f"FIXSTREAM_TERRAIN_NAV_{k.upper()}": v for k, v in settings.items()}),
-        cwd=REPO,
-        text=True,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-    )
-    client = open_session(ZenohSettings(mode="client", connect=[router]))
-    try:
-        received: dict[str, list[Message]] = defaultdict(list)
-
-        def keep(sample: zenoh.Sample) -> None:
-            received[str(sample.key_expr)].append(codec.decode(sample.payload.to_bytes(), str(sample.encoding)))
-
-        subs = [client.declare_subscriber(k, keep) for k in (FIX_KEY, VERDICT_KEY, keys.diag("terrain_nav", "bad1"))]
-        alive = keys.alive("terrain_nav", "bad1")
-        assert wait_until(lambda: len(list(client.liveliness().get(alive, timeout=0.5))) == 1, timeout=30)
-        pubs: dict[str, zenoh.Publisher] = {}
-        for key, payload, encoding in items:
-            if key not in pubs:
-                pubs[key] = client.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
-            pubs[key].put(payload, encoding=zenoh.Encoding(encoding))
+    env = {f"FIXSTREAM_TERRAIN_NAV_{k.upper()}": v for k, v in settings.items()}
+    diag_key = keys.diag("terrain_nav", "bad1")
+    with live_service(router, "terrain_nav", "bad1", [FIX_KEY, VERDICT_KEY], **env) as live:
+        live.put_raw(items)
 
         def resets() -> int:
-            return sum(isinstance(v, TerrainVerdict) and v.state == "RESET" for v in received[VERDICT_KEY])
+            return sum(isinstance(v, TerrainVerdict) and v.state == "RESET" for v in live.received[VERDICT_KEY])
 
-        diag_key = keys.diag("terrain_nav", "bad1")
         n_diag = sum(o.key == diag_key for o in offline)
-        assert wait_until(lambda: resets() == 1 and len(received[diag_key]) == n_diag, timeout=60)
-
-        # still alive, and its status adds up
-        assert proc.poll() is None
-        assert len(list(client.liveliness().get(alive, timeout=1.0))) == 1
-        replies = list(client.get(keys.status("terrain_nav", "bad1"), timeout=5.0))
-        assert len(replies) == 1 and replies[0].ok is not None
-        status = json.loads(replies[0].ok.payload.to_bytes())
+        assert wait_until(lambda: resets() == 1 and live.count(diag_key) == n_diag, timeout=60)
+        assert live.proc.poll() is None and live.alive(1.0)  # still alive, and its status adds up
+        status = live.status()
         c = status["counters"]
         assert c["received"] == len(items) == c["accepted"] + c["rejected"]
         assert c["rejected_by_reason"] == dict(expected)
         assert c["rejected"] == sum(expected.values()) and status["pending"] == 0
         assert status["events"]["ins_gap"] == 1 and status["events"]["out_of_zone"] == 1
-        for s in subs:
-            s.undeclare()
-    finally:
-        client.close()
-        proc.terminate()
-        output, _ = proc.communicate(timeout=30)
-    assert proc.returncode == 0, output[-3000:]
-    assert "internal_error" not in output and "Traceback" not in output
+    received = live.received
 
     # the same outputs as the offline twin, and the diagnostics name every case with its key
     assert received[FIX_KEY] == on_key(offline, FIX_KEY)
