@@ -29,8 +29,15 @@ class DecodeError(ValueError):
         self.detail = detail
 
 
+_ENCODING_OF: dict[type[Message], str] = {}
+
+
 def encoding_of(model: type[Message]) -> str:
-    return _PREFIX + model.schema_id()
+    """``application/msgpack;fixstream.<Model>/<version>`` (built once per model: hot publish paths)."""
+    enc = _ENCODING_OF.get(model)
+    if enc is None:
+        enc = _ENCODING_OF[model] = _PREFIX + model.schema_id()
+    return enc
 
 
 _ZENOH_ENCODINGS: dict[str, zenoh.Encoding] = {}

@@ -230,7 +230,8 @@ class Service:
         """Stamp source and per-key seq, encode and put (offline: append to :attr:`outbox`)."""
         seq = self._seq.get(key, 0)
         self._seq[key] = seq + 1
-        header = msg.header.model_copy(update={"source": self.source, "seq": seq})
+        h = msg.header
+        header = Header(stamp_ns=h.stamp_ns, frame_id=h.frame_id, source=self.source, seq=seq)
         stamped = msg.model_copy(update={"header": header})
         if self.session is None:
             self.outbox.append(Output(key, stamped))
