@@ -7,7 +7,7 @@ counted. ``stop_when_resolved`` ends a run once one hypothesis remains (enough f
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -19,6 +19,7 @@ from shared.errors import InputRejected
 
 from .config import LblNavConfig
 from .core import LblNavCore
+from .epochs import NS
 from .simulation import ScenarioSpec, SimRun, simulate
 
 F64 = NDArray[np.float64]
@@ -77,21 +78,34 @@ def run_core(cfg: LblNavConfig, sim: SimRun, stop_when_resolved: bool = False) -
     """One run: feed the simulated messages to a fresh core and build the trace against the truth."""
     core = LblNavCore(cfg)
     outs, rejected = feed(core, sim.messages, stop_when_resolved)
+    truth = {int(s): (float(x), float(y)) for s, x, y in zip(sim.stamps_ns, sim.x_m, sim.y_m, strict=True)}
+    return trace_from_outputs(outs, truth, int(sim.stamps_ns[sim.i0]), sim.seed, rejected)
+
+
+def trace_from_outputs(
+    outs: Sequence[Message],
+    truth_xy: Mapping[int, tuple[float, float]],
+    t0_ns: int,
+    seed: int = 0,
+    rejected: int = 0,
+) -> RunTrace:
+    """The trace of one run from the estimator's outputs (its ``LblFix`` and ``LblEvent`` messages, in order) and
+    the true horizontal position at each epoch stamp; times are relative to the simulated launch epoch ``t0_ns``
+    (the epoch at which two beacons are first heard; the core's launch, if it is postponed, is later)."""
     fixes = [o for o in outs if isinstance(o, LblFix)]
     events = [o for o in outs if isinstance(o, LblEvent)]
     post = [f for f in fixes if f.launch_stamp_ns is not None and f.header.stamp_ns >= f.launch_stamp_ns]
-    tr = RunTrace(seed=sim.seed, launched=bool(post), rejected_inputs=rejected, events=events)
+    tr = RunTrace(seed=seed, launched=bool(post), rejected_inputs=rejected, events=events)
     tr.fixes_pre_launch = len(fixes) - len(post)
     if not post:
         return tr
     # only the first launch (a re-launch after divergence starts a new record; not expected in the scenarios)
     launch_ns = post[0].launch_stamp_ns
     assert launch_ns is not None
-    post = [f for f in post if f.launch_stamp_ns == launch_ns]
+    post = [f for f in post if f.launch_stamp_ns == launch_ns and f.header.stamp_ns in truth_xy]
     n = len(post)
-    idx = np.array([sim.index_of(f.header.stamp_ns) for f in post])
-    tr.t_s = sim.t_s[idx]
-    tr.truth = np.column_stack([sim.x_m[idx], sim.y_m[idx]])
+    tr.t_s = np.array([(f.header.stamp_ns - t0_ns) / NS for f in post], dtype=np.float64)
+    tr.truth = np.array([truth_xy[f.header.stamp_ns] for f in post], dtype=np.float64).reshape(n, 2)
     tr.n_hyp = np.array([len(f.hypotheses) for f in post], dtype=np.int64)
     tr.valid = np.array([f.valid for f in post], dtype=bool)
     tr.pos = np.full((n, 2), np.nan)
@@ -105,13 +119,12 @@ def run_core(cfg: LblNavConfig, sim: SimRun, stop_when_resolved: bool = False) -
         for h in f.hypotheses:
             arr = tr.hyp_pos.setdefault(h.hypothesis_id, np.full((n, 2), np.nan))
             arr[j] = h.position_m[:2]
-    first = post[0]
-    if len(first.hypotheses) == 2:
-        d = {h.hypothesis_id: math.dist(h.position_m[:2], tr.truth[0]) for h in first.hypotheses}
+    if n and len(post[0].hypotheses) == 2:
+        d = {h.hypothesis_id: math.dist(h.position_m[:2], tr.truth[0]) for h in post[0].hypotheses}
         tr.true_label = min(d, key=lambda u: d[u])
     for f in post:
         if f.resolved_stamp_ns is not None:
-            tr.resolution_t_s = float(sim.t_s[sim.index_of(f.resolved_stamp_ns)] - sim.t_s[sim.index_of(launch_ns)])
+            tr.resolution_t_s = (f.resolved_stamp_ns - launch_ns) / NS
             tr.merged = f.hypothesis_source == "merged"
             if f.hypothesis_source == "resolved":
                 tr.decided = f.accepted_hypothesis

@@ -256,10 +256,19 @@ class HypothesisBank:
                 h.drop_augmentation()
             self.buffer = []
 
+    def _backward(self, dr: DrInterval) -> tuple[F64, F64, F64] | None:
+        """The backward matrices shared by every hypothesis (None: they depend on each one's dK estimate)."""
+        return None if self.cfg.heading_linearisation == "estimate" else self.motion.backward(dr)
+
+    def _forward(self, dr: DrInterval) -> tuple[F64, F64, F64] | None:
+        """The forward matrices shared by every hypothesis (None: they depend on each one's dK estimate)."""
+        return None if self.cfg.heading_linearisation == "estimate" else self.motion.forward(dr)
+
     def _back_step(self, report: StepReport) -> None:
         dr, entry = self._next_entry()
+        shared = self._backward(dr)
         for h in self.hyps:
-            Phib, bb, Qb = self.motion.backward(dr, float(h.X[SDK]))
+            Phib, bb, Qb = shared or self.motion.backward(dr, float(h.X[SDK]))
             h.predict_backward(Phib, bb, Qb)
         self.processed += 1
         self.update_all(list(entry.rows), report)
@@ -281,9 +290,10 @@ class HypothesisBank:
         report = StepReport()
         if self.augmented:
             drb, entry = self._next_entry()
+            back, fwd = self._backward(drb), self._forward(dr)
             for h in self.hyps:
-                Phib, bb, Qb = self.motion.backward(drb, float(h.X[SDK]))
-                Phi, b, Q = self.motion.forward(dr, float(h.X[AUG + IDK]))
+                Phib, bb, Qb = back or self.motion.backward(drb, float(h.X[SDK]))
+                Phi, b, Q = fwd or self.motion.forward(dr, float(h.X[AUG + IDK]))
                 h.predict_joint(Phib, bb, Qb, Phi, b, Q)
             self.processed += 1
             self.update_all(list(entry.rows) + list(rows), report)
@@ -293,8 +303,9 @@ class HypothesisBank:
                 self._back_step(report)
             self._finish_buffer()
         else:
+            fwd = self._forward(dr)
             for h in self.hyps:
-                Phi, b, Q = self.motion.forward(dr, float(h.X[IDK]))
+                Phi, b, Q = fwd or self.motion.forward(dr, float(h.X[IDK]))
                 h.predict_forward(Phi, b, Q)
             self.update_all(list(rows), report)
         return report

@@ -154,7 +154,7 @@ def aggregate_runs(per_run: Sequence[dict[str, Any]], horizon_s: float | None = 
         "eta": eta_curve(per_run, t_grid),
         "rms": rms_curves(per_run),
         "launched": sum(bool(r["launched"]) for r in per_run),
-        "rejected_inputs": sum(int(r["rejected_inputs"]) for r in per_run),
+        "rejected_inputs": sum(int(r.get("rejected_inputs", 0)) for r in per_run),
     }
 
 

@@ -98,17 +98,31 @@ class MotionModel:
         dt = dr.dt_s
         lin = aK * dK_prev if self.cfg.heading_linearisation == "estimate" else 0.0
         ve, vn, bx, by = self._rotated(dr, lin)
-        M = np.eye(6)
-        M[IX, IDK] = vn
-        M[IX, IUE] = dt
-        M[IY, IDK] = -ve
-        M[IY, IUN] = dt
-        Phi = M * np.array([1.0, 1.0, 1.0, aK, aU, aU])  # M @ diag(D)
+        # Phi = M diag(1, 1, 1, aK, aU, aU) with M = I + dt E (E: (x, dK) = V^N, (x, dU^E) = 1, (y, dK) = -V^E,
+        # (y, dU^N) = 1; here ve, vn are already V dt); Q = M diag(0, 0, 0, qK, qU, qU) M^T + diag(w2, w2, 0, ...)
+        # written out entry by entry (the same values as the matrix products, without their call overhead)
+        Phi = np.array(
+            [
+                [1.0, 0.0, 0.0, vn * aK, 0.0, dt * aU],
+                [0.0, 1.0, 0.0, -ve * aK, dt * aU, 0.0],
+                [0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+                [0.0, 0.0, 0.0, aK, 0.0, 0.0],
+                [0.0, 0.0, 0.0, 0.0, aU, 0.0],
+                [0.0, 0.0, 0.0, 0.0, 0.0, aU],
+            ]
+        )
         b = np.array([bx + dr.ue_dt_m, by + dr.un_dt_m, 0.0, 0.0, 0.0, 0.0])
-        G = M[:, 3:]
-        Q = (G * np.array([qK, qU, qU])) @ G.T
-        Q[IX, IX] += w2
-        Q[IY, IY] += w2
+        qx, qy, qu = vn * qK, -ve * qK, dt * qU
+        Q = np.array(
+            [
+                [vn * qx + dt * qu + w2, vn * qy, 0.0, qx, 0.0, qu],
+                [vn * qy, -ve * qy + dt * qu + w2, 0.0, qy, qu, 0.0],
+                [0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                [qx, qy, 0.0, qK, 0.0, 0.0],
+                [0.0, qu, 0.0, 0.0, qU, 0.0],
+                [qu, 0.0, 0.0, 0.0, 0.0, qU],
+            ]
+        )
         return Phi, b, Q
 
     def backward(self, dr: DrInterval, dK_next: float = 0.0) -> tuple[F64, F64, F64]:
@@ -120,13 +134,17 @@ class MotionModel:
         dt = dr.dt_s
         lin = dK_next if self.cfg.heading_linearisation == "estimate" else 0.0
         ve, vn, bx, by = self._rotated(dr, lin)
-        Mb = np.eye(5)
-        Mb[SX, SDK] = -vn
-        Mb[SX, SUE] = -dt
-        Mb[SY, SDK] = ve
-        Mb[SY, SUN] = -dt
-        Phi = np.array([1.0, 1.0, aK, aU, aU])[:, None] * Mb  # diag(D^b) @ M^b
-        b = -np.array([bx + dr.ue_dt_m, by + dr.un_dt_m, 0.0, 0.0, 0.0])
+        # Phi^b = diag(1, 1, aK, aU, aU) (I - dt E^b), E^b: (x, dK) = V^N, (x, dU^E) = 1, (y, dK) = -V^E, (y, dU^N) = 1
+        Phi = np.array(
+            [
+                [1.0, 0.0, -vn, 0.0, -dt],
+                [0.0, 1.0, ve, -dt, 0.0],
+                [0.0, 0.0, aK, 0.0, 0.0],
+                [0.0, 0.0, 0.0, aU, 0.0],
+                [0.0, 0.0, 0.0, 0.0, aU],
+            ]
+        )
+        b = np.array([-(bx + dr.ue_dt_m), -(by + dr.un_dt_m), -0.0, -0.0, -0.0])
         Q = np.diag([w2, w2, qK, qU, qU])
         return Phi, b, Q
 

@@ -13,6 +13,7 @@ plus the known current U plus dU; the values at epoch t apply to the interval (t
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -137,8 +138,16 @@ def _markov(rng: np.random.Generator, n: int, sigma: float, tau_s: float, dt_s: 
     return out
 
 
-def simulate(spec: ScenarioSpec, rng: np.random.Generator, seed: int = 0) -> SimRun:
-    """Truth, error draws and the message stream of one run (draw order fixed, all beacons drawn every epoch)."""
+def simulate(
+    spec: ScenarioSpec,
+    rng: np.random.Generator,
+    seed: int = 0,
+    header: Callable[[int, int], Header] | None = None,
+) -> SimRun:
+    """Truth, error draws and the message stream of one run (draw order fixed, all beacons drawn every epoch).
+
+    ``header(stamp_ns, epoch_index)`` makes the messages' headers (default: frame ``local_en_depth``, source
+    ``sim``, seq = the epoch index)."""
     dt = spec.dt_s
     n0 = round(-spec.t_start_s / dt)
     t = np.asarray((np.arange(round((spec.t_end_s - spec.t_start_s) / dt) + 1) - n0) * dt, dtype=np.float64)
@@ -183,7 +192,7 @@ def simulate(spec: ScenarioSpec, rng: np.random.Generator, seed: int = 0) -> Sim
         visible[b.beacon_id] = vis
     msgs: list[Message] = []
     frame = "local_en_depth"
-    h0 = Header(stamp_ns=int(stamps[0]), frame_id=frame, source="sim")
+    h0 = Header(stamp_ns=int(stamps[0]), frame_id=frame, source="sim") if header is None else header(int(stamps[0]), 0)
     msgs.append(
         BeaconTable(
             header=h0,
@@ -195,7 +204,11 @@ def simulate(spec: ScenarioSpec, rng: np.random.Generator, seed: int = 0) -> Sim
     )
     msgs.append(Current(header=h0, u_north_mps=un, u_east_mps=ue))
     for i in range(n):
-        h = Header(stamp_ns=int(stamps[i]), frame_id=frame, source="sim", seq=i)
+        h = (
+            Header(stamp_ns=int(stamps[i]), frame_id=frame, source="sim", seq=i)
+            if header is None
+            else header(int(stamps[i]), i)
+        )
         msgs.append(SpeedLog(header=h, v_forward_mps=float(vf[i]), v_starboard_mps=float(vs[i]), avg_interval_s=dt))
         msgs.append(Heading(header=h, heading_rad=float(math.remainder(K_meas[i], 2.0 * math.pi))))
         msgs.append(Depth(header=h, depth_m=spec.auv_depth_m))
