@@ -41,6 +41,7 @@ from .core import AttitudeCore
 from .evaluation import evaluation_config
 from .metrics import ANGLE_FIELDS, RunRecorder
 from .metrics import aggregate as aggregate_records
+from .service import ESTIMATOR
 from .simulator import AttitudeSimParams, enu_to_nue
 
 #: fields of the digest's reference-run configuration (``evaluation_config``) that differ from the service's
@@ -111,31 +112,33 @@ def radar_frame_truth(truth: Truth, site_enu_m: list[float]) -> Truth:
     return truth.model_copy(update={"position_m": pos, "velocity_mps": vel, "acceleration_mps2": acc})
 
 
-def run_core(events: list[Event], params: dict[str, Any], scenario: Scenario) -> dict[str, Any]:
-    """Metrics of one run: every target of the site scored at each of its truth samples (see the module doc)."""
+def run_metrics(
+    outputs: list[Event], events: list[Event], params: dict[str, Any], scenario: Scenario
+) -> dict[str, Any]:
+    """Metrics of one run from what the site published (its ``AttitudeEstimate`` events; COASTING ones are not
+    scored) against the targets' truth in ``events``: every target with a plot on the site's radar keys, scored at
+    each of its truth samples. A pure function of the two, so a recording gives the figures of :func:`run_core`."""
     p = Params.model_validate(params, strict=True)
     site_id, site_pos = _site(p, scenario)
     config = p.core_config(site_id)
-    core = AttitudeCore(config)
     prefix = f"{keys.ROOT}/sensor/{site_id}/radar/"
     estimates: dict[str, dict[int, AttitudeEstimate]] = {}
     truths: dict[str, list[Truth]] = {}
-    rejected = 0
+    truth_keys: dict[str, str] = {}
     for ev in events:
         msg = ev.msg
-        if ev.key.startswith(prefix):
-            if isinstance(msg, RadarPlot):
-                estimates.setdefault(msg.target_id, {})
-            try:
-                produced = core.step(msg)  # type: ignore[arg-type]
-            except InputRejected:
-                rejected += 1
-                continue
-            for est in produced:
-                if est.status != "COASTING":
-                    estimates.setdefault(est.target_id, {})[est.header.stamp_ns] = est
-        elif isinstance(msg, Truth) and ev.key == keys.truth(msg.platform):
-            truths.setdefault(msg.platform, []).append(msg)
+        if isinstance(msg, RadarPlot) and ev.key.startswith(prefix):
+            estimates.setdefault(msg.target_id, {})
+        elif isinstance(msg, Truth):
+            key = truth_keys.get(msg.platform)
+            if key is None:
+                key = truth_keys[msg.platform] = keys.truth(msg.platform)
+            if ev.key == key:
+                truths.setdefault(msg.platform, []).append(msg)
+    for ev in outputs:
+        est = ev.msg
+        if isinstance(est, AttitudeEstimate) and est.site_id == site_id and est.status != "COASTING":
+            estimates.setdefault(est.target_id, {})[est.header.stamp_ns] = est
     targets: dict[str, Any] = {}
     for tid, by_stamp in estimates.items():
         recorder = RunRecorder()
@@ -147,6 +150,33 @@ def run_core(events: list[Event], params: dict[str, Any], scenario: Scenario) ->
         "params": p.model_dump(mode="json"),
         "config": config.model_dump(mode="json"),
         "targets": targets,
+    }
+
+
+#: keys :func:`run_core` adds to :func:`run_metrics`: the core's own counters, which nothing published carries
+OFFLINE_ONLY = ("rejected", "core")
+
+
+def run_core(events: list[Event], params: dict[str, Any], scenario: Scenario) -> dict[str, Any]:
+    """Metrics of one run: one core of the site fed the site's radar events in order, then :func:`run_metrics`."""
+    p = Params.model_validate(params, strict=True)
+    site_id, _ = _site(p, scenario)
+    core = AttitudeCore(p.core_config(site_id))
+    prefix = f"{keys.ROOT}/sensor/{site_id}/radar/"
+    out_prefix = f"{keys.ROOT}/fix/{ESTIMATOR}/{site_id}/"  # service.output_key, without its key-chunk check
+    outputs: list[Event] = []
+    rejected = 0
+    for ev in events:
+        if not ev.key.startswith(prefix):
+            continue
+        try:
+            produced = core.step(ev.msg)  # type: ignore[arg-type]
+        except InputRejected:
+            rejected += 1
+            continue
+        outputs += [Event(est.header.stamp_ns, out_prefix + est.target_id, est) for est in produced]
+    return {
+        **run_metrics(outputs, events, params, scenario),
         "rejected": rejected,
         "core": dict(sorted(core.counters.items())),
     }
@@ -222,4 +252,4 @@ def _trim(rec: dict[str, Any], n: int) -> dict[str, Any]:
     return out
 
 
-__all__ = ["REFERENCE_RULES", "Params", "aggregate", "radar_frame_truth", "run_core"]
+__all__ = ["OFFLINE_ONLY", "REFERENCE_RULES", "Params", "aggregate", "radar_frame_truth", "run_core", "run_metrics"]

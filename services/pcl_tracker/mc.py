@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from schemas import Truth
+from schemas.pcl_tracker import PclScanReport
 from schemas.radar import BistaticConfigUpdate, BistaticScan
 from services.player.scenario import Scenario
 from services.player.simulators import NS_PER_S, Event
@@ -31,7 +32,7 @@ from shared.errors import InputRejected
 
 from . import metrics
 from .core import PclTracker
-from .service import input_key
+from .service import input_key, output_key
 from .settings import PclTrackerParams, to_config
 
 #: validates ``estimators[].params`` (strict): the tracker parameters and the metric options
@@ -65,27 +66,26 @@ def _truth_at(series: list[tuple[int, list[float]]], stamps_ns: np.ndarray) -> n
     return out
 
 
-def run_core(events: list[Event], params: dict[str, Any], scenario: Scenario) -> dict[str, Any]:
-    """One run: the tracker over the pair's events, scored against the targets' truth."""
+def run_metrics(
+    outputs: list[Event], events: list[Event], params: dict[str, Any], scenario: Scenario
+) -> dict[str, Any]:
+    """Metrics of one run from what the tracker published (its ``PclScanReport`` events, in order) against the
+    targets' ``Truth`` in ``events``: a pure function of the two, so a recording gives the figures of
+    :func:`run_core`."""
     p = PclTrackerParams.model_validate(params)
     cfg = to_config(p)
     rx, tx = cfg.geometry.receiver_id, cfg.geometry.illuminator_id
-    key = input_key(rx, tx)
-    core = PclTracker(cfg)
-    reports = []
-    refused: Counter[str] = Counter()
+    reports = [
+        ev.msg
+        for ev in outputs
+        if isinstance(ev.msg, PclScanReport) and ev.msg.receiver_id == rx and ev.msg.illuminator_id == tx
+    ]
     truth: dict[str, list[tuple[int, list[float]]]] = defaultdict(list)
     for ev in events:
         msg = ev.msg
-        if ev.key == key and isinstance(msg, BistaticScan | BistaticConfigUpdate):
-            try:
-                reports += core.step(msg)
-            except InputRejected as exc:
-                refused[exc.reason] += 1
-        elif isinstance(msg, Truth):
+        if isinstance(msg, Truth):
             vel = msg.velocity_mps if msg.velocity_mps is not None else [float("nan")] * 3
             truth[msg.platform].append((msg.header.stamp_ns, [*msg.position_m, *vel]))
-    reports += core.flush()
     scans = [r for r in reports if r.trigger == "scan"]
     targets = p.targets if p.targets is not None else scenario_targets(scenario, rx, tx)
     stamps = np.array([r.header.stamp_ns for r in scans], dtype=np.int64)
@@ -109,6 +109,34 @@ def run_core(events: list[Event], params: dict[str, Any], scenario: Scenario) ->
         "targets": list(targets),
         "n_scans": len(scans),
         "n_tracks_created": len(ids),
+    }
+
+
+#: keys :func:`run_core` adds to :func:`run_metrics`: the core's own counters, which nothing published carries
+OFFLINE_ONLY = ("refused_inputs", "core_metrics")
+
+
+def run_core(events: list[Event], params: dict[str, Any], scenario: Scenario) -> dict[str, Any]:
+    """One run: the tracker over the pair's events (flushed at the end), then :func:`run_metrics`."""
+    p = PclTrackerParams.model_validate(params)
+    cfg = to_config(p)
+    rx, tx = cfg.geometry.receiver_id, cfg.geometry.illuminator_id
+    key = input_key(rx, tx)
+    out_key = output_key(rx, tx)
+    core = PclTracker(cfg)
+    reports = []
+    refused: Counter[str] = Counter()
+    for ev in events:
+        msg = ev.msg
+        if ev.key == key and isinstance(msg, BistaticScan | BistaticConfigUpdate):
+            try:
+                reports += core.step(msg)
+            except InputRejected as exc:
+                refused[exc.reason] += 1
+    reports += core.flush()
+    outputs = [Event(r.header.stamp_ns, out_key, r) for r in reports]
+    return {
+        **run_metrics(outputs, events, params, scenario),
         "refused_inputs": dict(refused),
         "core_metrics": dict(sorted(core.metrics.items())),
     }

@@ -97,6 +97,14 @@ class EstimatorSpec(_Strict):
         return self
 
 
+class GeodeticOrigin(_Strict):
+    """The geodetic point at the origin of the scenario frame (ENU axes there): maps and Foxglove's LocationFix."""
+
+    lat_deg: float = Field(ge=-90.0, le=90.0, description="latitude, deg (WGS84)")
+    lon_deg: float = Field(ge=-180.0, le=180.0, description="longitude, deg (WGS84)")
+    alt_m: float = Field(default=0.0, ge=-11_000.0, le=100_000.0, description="height above the ellipsoid, m")
+
+
 class Scenario(_Strict):
     """A scenario file."""
 
@@ -106,6 +114,7 @@ class Scenario(_Strict):
     seed: int = Field(default=0, ge=0, lt=2**63, description="default seed (fixstream play --seed overrides)")
     duration_s: float = Field(gt=0.0, le=1e7, description="simulated duration, s")
     frame_id: str = Field(default="local_enu", min_length=1, max_length=128, description="header.frame_id")
+    origin: GeodeticOrigin | None = Field(default=None, description="where [0, 0, 0] of frame_id is on the Earth")
     wait_for: list[Annotated[str, AfterValidator(_wait_name)]] = Field(
         default_factory=list, description="'service' (any instance) or 'service/instance' that must be alive"
     )

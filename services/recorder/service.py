@@ -8,6 +8,11 @@ per (key, ``header.source``): a jump forward is a ``seq_gap`` diagnostic (and ad
 ``lost``), a jump backwards (or a repeat) is a ``seq_reset`` diagnostic (publisher restarted). Both are
 reported, not rejected: the message itself is recorded.
 
+With ``FIXSTREAM_RECORDER_FOXGLOVE=true`` every written message that carries positions (truth, fixes, tracks)
+is also written as Foxglove scene and map messages (:mod:`shared.foxglove`), so the file opens in Foxglove
+with a 3D scene and a map and no set-up; the frames and the geodetic origin come from the scenario the player's
+start marker names (looked up in ``FIXSTREAM_RECORDER_SCENARIOS_DIR``).
+
 Status (``fixstream/status/recorder/<instance>``) adds ``written``, ``lost``, ``seq_gaps``,
 ``seq_resets``, ``write_errors``, ``files_written`` (finalised files), ``recent_files`` (the last ten),
 ``current_file`` and ``chunks_written`` to the base counters. SIGTERM finalises the current file (summary
@@ -25,6 +30,8 @@ from typing import Any, ClassVar, cast
 
 from schemas import Message
 from shared import codec
+from shared.foxglove.convert import Converter
+from shared.foxglove.recording import FoxgloveChannels
 from shared.service import Output, Service, Subscription
 from shared.settings import ZenohSettings
 
@@ -58,6 +65,10 @@ class RecorderService(Service):
         #: next expected seq per (key, header.source)
         self._next_seq: dict[tuple[str, str], int] = {}
         self.seq_events: Counter[str] = Counter()
+        #: the Foxglove scene and map channels (FIXSTREAM_RECORDER_FOXGLOVE), converted from what is written
+        self.foxglove: FoxgloveChannels | None = None
+        if settings.foxglove:
+            self.foxglove = FoxgloveChannels(Converter(scenarios_dir=settings.scenarios_dir))
 
     # ----- Service hooks ------------------------------------------------------------------------
     def subscriptions(self) -> list[Subscription]:
@@ -89,6 +100,8 @@ class RecorderService(Service):
             "recent_files": [str(p) for p in self.writer.files_written[-10:]],
             "current_file": str(current) if current is not None else None,
             "chunks_written": self.writer.chunks_written,
+            "foxglove_written": self.foxglove.written if self.foxglove is not None else None,
+            "foxglove_errors": dict(self.foxglove.errors) if self.foxglove is not None else None,
         }
 
     # ----- sample path --------------------------------------------------------------------------
@@ -97,6 +110,8 @@ class RecorderService(Service):
         msg = codec.decode(payload, encoding)
         try:
             self.writer.write(key, msg, self.rx_time_ns)
+            if self.foxglove is not None:
+                self.foxglove.write(self.writer, key, msg, self.rx_time_ns)
         except OSError as exc:
             self._write_failed(key, exc)
             return

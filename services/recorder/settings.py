@@ -11,6 +11,8 @@
 ``FIXSTREAM_RECORDER_FILE_PREFIX``      file name prefix: ``<prefix>_<UTC>_<nnn>.mcap``
 ``FIXSTREAM_RECORDER_INSTANCE``         instance name (last chunk of the recorder's keys)
 ``FIXSTREAM_RECORDER_QUEUE_SIZE``       inbound samples held before back-pressure
+``FIXSTREAM_RECORDER_FOXGLOVE``         also write Foxglove scene and map channels (default false)
+``FIXSTREAM_RECORDER_SCENARIOS_DIR``    where the start marker's scenario is looked up (frames, origin)
 =====================================  ==============================================================
 
 The Zenoh connection comes from ``FIXSTREAM_ZENOH_*`` (:class:`shared.settings.ZenohSettings`).
@@ -50,6 +52,16 @@ class RecorderSettings(ServiceSettings):
     rotate_size_mb: float = Field(default=1024.0, ge=0.0, description="rotate after this many MB (1e6 bytes); 0: off")
     rotate_duration_s: float = Field(default=0.0, ge=0.0, description="rotate after this many seconds; 0: off")
     file_prefix: str = Field(default="fixstream", max_length=64, description="file name prefix, no path parts")
+    foxglove: bool = Field(
+        default=False,
+        description="also write /foxglove/scene/<key> (foxglove.SceneUpdate) and /foxglove/location/<key> "
+        "(foxglove.LocationFix[es]) channels converted from fixes, tracks and truth (shared/foxglove)",
+    )
+    scenarios_dir: Path | None = Field(
+        default=None,
+        description="directory the start marker's scenario is looked up in for the Foxglove channels' frames and "
+        "geodetic origin (default $FIXSTREAM_SCENARIOS_DIR or scenarios)",
+    )
 
     @field_validator("file_prefix")
     @classmethod

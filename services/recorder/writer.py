@@ -148,8 +148,10 @@ class RotatingMcapWriter:
         self._schema_cache: dict[str, bytes] = {}
         #: finalised files, oldest first
         self.files_written: list[Path] = []
-        #: messages written over all files
+        #: fixstream messages written over all files
         self.messages_written = 0
+        #: other messages (:meth:`write_raw`, e.g. the Foxglove channels) written over all files
+        self.raw_written = 0
         #: chunks written over all files
         self.chunks_written = 0
 
@@ -175,6 +177,46 @@ class RotatingMcapWriter:
             f = self._file = self._open(now)
         start = f.stream.tell()
         channel_id = self._channel(f, topic, type(msg))  # may close a full chunk (schema/channel records)
+        data = msg.model_dump_json().encode()
+        self._add(f, start, now, channel_id, log_time_ns, data, msg.header.stamp_ns, msg.header.seq)
+
+    def write_raw(
+        self,
+        topic: str,
+        schema: tuple[str, str, bytes],
+        message_encoding: str,
+        data: bytes,
+        log_time_ns: int,
+        publish_time_ns: int,
+        sequence: int = 0,
+    ) -> None:
+        """Add one already-encoded message on channel ``topic`` with ``schema`` = (name, encoding, data), e.g. the
+        Foxglove scene channels (``foxglove.SceneUpdate``, ``protobuf``); chunking and rotation as :meth:`write`."""
+        now = self._clock()
+        f = self._file
+        if f is not None and self._duration_due(f, now):
+            self.finish()
+            f = None
+        if f is None:
+            f = self._file = self._open(now)
+        start = f.stream.tell()
+        channel_id = self._raw_channel(f, topic, schema, message_encoding)
+        self.raw_written += 1
+        self._add(f, start, now, channel_id, log_time_ns, data, publish_time_ns, sequence, raw=True)
+
+    def _add(
+        self,
+        f: _OpenFile,
+        start: int,
+        now: float,
+        channel_id: int,
+        log_time_ns: int,
+        data: bytes,
+        publish_ns: int,
+        seq: int,
+        raw: bool = False,
+    ) -> None:
+        """Add a message to the open chunk; count chunks the mcap writer closed; rotate or poll."""
         before = f.stream.tell()
         if before != start:
             self.chunks_written += 1
@@ -182,12 +224,13 @@ class RotatingMcapWriter:
         f.writer.add_message(
             channel_id=channel_id,
             log_time=log_time_ns,
-            data=msg.model_dump_json().encode(),
-            publish_time=msg.header.stamp_ns,
-            sequence=msg.header.seq & 0xFFFFFFFF,
+            data=data,
+            publish_time=publish_ns,
+            sequence=seq & 0xFFFFFFFF,
         )
         f.messages += 1
-        self.messages_written += 1
+        if not raw:
+            self.messages_written += 1
         if f.stream.tell() != before:  # the mcap writer closed a full chunk (this message is in it)
             self.chunks_written += 1
             f.chunk_opened_at = None
@@ -288,6 +331,19 @@ class RotatingMcapWriter:
             data = json.dumps(json_schema(name), sort_keys=True, separators=(",", ":")).encode()
             self._schema_cache[name] = data
         return data
+
+    def _raw_channel(self, f: _OpenFile, topic: str, schema: tuple[str, str, bytes], message_encoding: str) -> int:
+        name, encoding, data = schema
+        channel_id = f.channel_ids.get((topic, name))
+        if channel_id is not None:
+            return channel_id
+        schema_id = f.schema_ids.get(name)
+        if schema_id is None:
+            schema_id = f.writer.register_schema(name=name, encoding=encoding, data=data)
+            f.schema_ids[name] = schema_id
+        channel_id = f.writer.register_channel(topic=topic, message_encoding=message_encoding, schema_id=schema_id)
+        f.channel_ids[(topic, name)] = channel_id
+        return channel_id
 
     def _channel(self, f: _OpenFile, topic: str, model: type[Message]) -> int:
         name = model.__name__

@@ -18,7 +18,8 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from schemas import Message, Truth
+from schemas import Truth
+from schemas.terrain_nav import TerrainFix, TerrainVerdict
 from services.player.scenario import Scenario
 from services.player.simulators import Event
 from shared import keys
@@ -27,6 +28,7 @@ from shared.errors import InputRejected
 from . import metrics
 from .config import TerrainNavConfig
 from .core import TerrainNavigator
+from .service import ESTIMATOR, VERDICT_SUFFIX
 from .simulator import BARO_KIND, INS_KIND, KIND, RADALT_KIND, RESET_KIND, TerrainFlightParams, scenario_world
 
 
@@ -65,31 +67,66 @@ def _simulator_params(scenario: Scenario, vehicle: str | None) -> TerrainFlightP
     return found[0]
 
 
+def _truths(events: list[Event], vehicle: str, scenario: Scenario) -> list[Truth]:
+    key = keys.truth(vehicle)
+    truths = [ev.msg for ev in events if ev.key == key and isinstance(ev.msg, Truth)]
+    if not truths:
+        raise ValueError(f"scenario {scenario.name}: no Truth of {vehicle} in the events")
+    return truths
+
+
+def run_metrics(
+    outputs: list[Event], events: list[Event], params: dict[str, Any], scenario: Scenario
+) -> dict[str, Any]:
+    """Metrics of one run from what the estimator published (``TerrainVerdict`` and ``TerrainFix`` events, in
+    publication order per key) scored against the vehicle's ``Truth`` in ``events``: a pure function of the two,
+    so a recording gives the same figures as the in-process run (:func:`run_core`). The ``RESET`` verdict the
+    service publishes when the player's end marker starts its next session (detail ``scenario <name> ended``)
+    is not part of the run and is not counted."""
+    p = Params.model_validate(params)
+    sim = _simulator_params(scenario, p.vehicle)
+    truths = _truths(events, sim.platform, scenario)
+    # the service's own RESET verdict after the player's end marker (its new session) is not part of the run
+    session_end = f"scenario {scenario.name} ended"
+    published = [
+        ev.msg
+        for ev in outputs
+        if isinstance(ev.msg, TerrainFix)
+        or (isinstance(ev.msg, TerrainVerdict) and not (ev.msg.state == "RESET" and ev.msg.detail == session_end))
+    ]
+    scored = metrics.score_run(published, metrics.TruthTrack(truths, sim.cell_m), p.availability_s)
+    return {**scored, "terrain_seed": int(truths[0].extra["terrain_seed"])}
+
+
+#: keys :func:`run_core` adds to :func:`run_metrics`: the core's own counters, which nothing published carries
+OFFLINE_ONLY = ("rejected", "core_counters")
+
+
 def run_core(events: list[Event], params: dict[str, Any], scenario: Scenario) -> dict[str, Any]:
-    """Metrics of one run: the core fed the vehicle's input messages in event order."""
+    """Metrics of one run: the core fed the vehicle's input messages in event order, then :func:`run_metrics`."""
     p = Params.model_validate(params)
     sim = _simulator_params(scenario, p.vehicle)
     vehicle = sim.platform
-    truths = [ev.msg for ev in events if ev.key == keys.truth(vehicle) and isinstance(ev.msg, Truth)]
-    if not truths:
-        raise ValueError(f"scenario {scenario.name}: no Truth of {vehicle} in the events")
-    terrain_seed = int(truths[0].extra["terrain_seed"])
+    terrain_seed = int(_truths(events, vehicle, scenario)[0].extra["terrain_seed"])
     world = scenario_world(sim, terrain_seed)
     nav = TerrainNavigator(world.ref_map, TerrainNavConfig(**p.config), source=f"{KIND}/mc")
     prefixes = tuple(f"{keys.ROOT}/sensor/{vehicle}/{k}/" for k in (INS_KIND, RADALT_KIND, BARO_KIND, RESET_KIND))
-    outputs: list[Message] = []
+    fix_key, verdict_key = keys.fix(ESTIMATOR, vehicle), keys.fix(ESTIMATOR, vehicle, VERDICT_SUFFIX)
+    outputs: list[Event] = []
     rejected: Counter[str] = Counter()
     for ev in events:
         if not ev.key.startswith(prefixes):
             continue
         try:
-            outputs.extend(nav.step(ev.msg))
+            produced = nav.step(ev.msg)
         except InputRejected as exc:
             rejected[exc.reason] += 1
-    scored = metrics.score_run(outputs, metrics.TruthTrack(truths, world.ref_map.cell_m), p.availability_s)
+            continue
+        for msg in produced:
+            key = fix_key if isinstance(msg, TerrainFix) else verdict_key
+            outputs.append(Event(msg.header.stamp_ns, key, msg))
     return {
-        **scored,
-        "terrain_seed": terrain_seed,
+        **run_metrics(outputs, events, params, scenario),
         "rejected": dict(sorted(rejected.items())),
         "core_counters": dict(sorted(nav.counters.items())),
     }

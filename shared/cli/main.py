@@ -20,6 +20,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "scenarios": ("shared.cli.scenarios", "list, show and validate scenario files"),
     "mc": ("shared.cli.mc", "Monte-Carlo runs of a scenario in-process, metrics to JSON"),
     "up": ("shared.cli.up", "run the compose.yaml stack as local processes"),
+    "report": ("shared.cli.report", "evaluation report of a recording: HTML with plots + metrics JSON"),
+    "foxglove": ("shared.cli.foxglove", "live bridge: Zenoh streams to the Foxglove app over WebSocket"),
 }
 
 

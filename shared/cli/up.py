@@ -6,6 +6,8 @@ embedded ``fixstream router`` on a free loopback port, and starts every other se
 locally in depends_on order. Output lines are prefixed with the service name. When the driver service
 (label ``fixstream.role: driver``, the player) exits, or on Ctrl-C, the others are stopped with
 SIGTERM in reverse order; the MCAP files written to the recordings directory are listed at the end.
+With ``--report`` (``make demo``) the run's recording is then reported (``fixstream report``: HTML and metrics
+JSON in ``<recording>_report/``) and the page's path printed.
 """
 
 from __future__ import annotations
@@ -13,6 +15,10 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..stack.console import Console
 
 #: interpolation variable that compose.yaml uses for the host side of the recordings volume
 RECORDINGS_VAR = "FIXSTREAM_RECORDINGS"
@@ -33,6 +39,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--profile", action="append", default=[], help="enable services of this compose profile")
     parser.add_argument("--dry-run", action="store_true", help="print the local commands and exit")
     parser.add_argument("--no-color", action="store_true", help="no colours in the service prefixes")
+    parser.add_argument(
+        "--report",
+        action="store_true",
+        help="after a successful run, write the report of its recording (fixstream report) and print its path",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -69,5 +80,26 @@ def run(args: argparse.Namespace) -> int:
         console.event(f"no new MCAP file in {', '.join(str(d) for d in plan.output_dirs)}")
     for failure in result.failures:
         console.event(f"failed: {failure}")
+    if args.report and result.exit_code == 0 and result.recordings:
+        report_path = _report(result.recordings, console)
+        if report_path is None:
+            console.event("done, exit code 1 (the report failed)")
+            return 1
     console.event(f"done, exit code {result.exit_code}")
     return result.exit_code
+
+
+def _report(recordings: list[Path], console: Console) -> Path | None:
+    """``fixstream report`` of the run's recording; prints where it is (None: it failed, the reason printed)."""
+    from shared.report import ReportError, make_report
+
+    event = console.event
+    try:
+        result = make_report(recordings, progress=False, workers=1)  # no fork of a process that ran Zenoh
+    except ReportError as exc:
+        event(f"report failed: {exc}")
+        return None
+    for note in result.metrics.get("notes", []):
+        event(f"report note: {note}")
+    event(f"report: {result.html_path}")
+    return result.html_path

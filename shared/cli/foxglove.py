@@ -1,0 +1,86 @@
+"""``fixstream foxglove``: a live bridge from the Zenoh streams to the Foxglove app (Foxglove WebSocket protocol).
+
+Subscribes to ``--key`` (default ``fixstream/**``) and serves every message on a Foxglove WebSocket server
+(the ``foxglove-sdk`` package) at ``ws://HOST:PORT``: each key as itself (JSON with its JSON Schema, as the
+recorder writes it) and, for fixes, tracks and truth, the same Foxglove scene (``/foxglove/scene/<key>``,
+``foxglove.SceneUpdate`` with 3σ ellipsoids) and map (``/foxglove/location/<key>``, ``foxglove.LocationFix``)
+channels as the recorder's MCAP. In Foxglove: *Open connection* → *Foxglove WebSocket* → the printed URL.
+
+Frames and the map's geodetic origin come from the scenario the player's start marker names (looked up in
+``--scenarios-dir``), or from ``--scenario``. Runs until Ctrl-C / SIGTERM. Once the server listens it prints
+``foxglove: ws://HOST:PORT`` (``--port 0`` picks a free port).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from .common import add_zenoh_arguments
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--host", default="127.0.0.1", help="address to serve on (0.0.0.0: every interface)")
+    parser.add_argument("--port", type=int, default=8765, help="WebSocket port (0: a free one)")
+    parser.add_argument("--key", default="fixstream/**", help="Zenoh key expression to serve")
+    parser.add_argument("--scenario", help="scenario .yaml (or name) for the frames and the map origin")
+    parser.add_argument("--scenarios-dir", help="where start markers' scenarios are looked up (default scenarios)")
+    parser.add_argument("--no-raw", action="store_true", help="serve only the Foxglove scene and map channels")
+    parser.add_argument("--timeout", type=float, default=0.0, help="exit after this many seconds (0: never)")
+    add_zenoh_arguments(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    import signal
+    import sys
+    import threading
+    import time
+
+    import foxglove
+
+    from shared.foxglove.bridge import Bridge
+    from shared.foxglove.convert import Converter
+
+    from ..session import open_session
+    from .common import zenoh_settings_from
+
+    converter = Converter(scenarios_dir=args.scenarios_dir)
+    if args.scenario:
+        from services.player.scenario import ScenarioError, load_scenario, resolve
+
+        try:
+            converter = Converter.for_scenario(load_scenario(resolve(args.scenario, args.scenarios_dir)))
+        except ScenarioError as exc:
+            print(f"fixstream foxglove: {exc}", file=sys.stderr)
+            return 2
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    context = foxglove.Context()
+    try:
+        server = foxglove.start_server(name="fixstream", host=args.host, port=args.port, context=context)
+    except Exception as exc:  # the SDK raises its own error types (e.g. address in use)
+        print(f"fixstream foxglove: cannot serve on {args.host}:{args.port}: {exc}", file=sys.stderr)
+        return 2
+    bridge = Bridge(converter, raw=not args.no_raw, context=context)
+    bridge.start()
+    session = open_session(zenoh_settings_from(args))
+    sub = session.declare_subscriber(
+        args.key, lambda s: bridge.on_sample(str(s.key_expr), s.payload.to_bytes(), str(s.encoding))
+    )
+    print(f"foxglove: ws://{args.host}:{server.port} (serving {args.key})", flush=True)
+    deadline = time.monotonic() + args.timeout if args.timeout > 0 else float("inf")
+    try:
+        while not stop.is_set() and time.monotonic() < deadline:
+            stop.wait(0.2)
+    finally:
+        sub.undeclare()
+        session.close()
+        bridge.stop()
+        server.stop()
+    errors = sum(bridge.errors.values())
+    print(
+        f"foxglove: served {sum(bridge.published.values())} messages on {len(bridge.published)} channels"
+        + (f", {errors} samples skipped: {dict(bridge.errors)}" if errors else ""),
+        flush=True,
+    )
+    return 0

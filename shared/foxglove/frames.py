@@ -1,0 +1,325 @@
+"""Positions and covariances of fixstream messages in one frame: the scenario's ENU frame.
+
+Every estimator publishes in its own frame (``header.frame_id``); a person looking at a scene or a plan view
+wants them all in one. :func:`estimates_of` turns a message into :class:`Estimate` s — position ``[east, north,
+up]`` (m) in the scenario frame and, where the message has one, its 3x3 covariance in the same axes — using
+:class:`FrameContext` for the frames it knows:
+
+==========================  ======================================================  =============================
+frame (``header.frame_id``)  axes of the message                                    to scenario ENU
+==========================  ======================================================  =============================
+the scenario's, ``*_enu``    east, north, up (``pcl_enu``: the receiver, at 0)       unchanged
+``*_ned`` (``base_ned``)     north, east, down                                       [y, x, -z]
+``local_en_depth``           east, north, depth                                      [x, y, -z]
+``map`` (terrain_nav)        x north, z east, h up                                   [z, x, h]
+``radar_nue/<site>``         north, up, east, radar-centred (attitude frame E)       site + [z, x, y]
+anything else                taken as ENU                                            unchanged
+==========================  ======================================================  =============================
+
+The radar sites' positions come from the scenario's ``attitude`` simulators (``site_position_m``); without a
+scenario they are taken at the origin. A covariance transforms with the same axis permutation and signs.
+
+The report (:mod:`shared.report`) plots these estimates against truth; the Foxglove conversion
+(:mod:`shared.foxglove.convert`) draws them as scene entities and map fixes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from schemas import Fix, Message, Track, Truth
+
+F64 = NDArray[np.float64]
+EstimateKind = Literal["truth", "fix", "hypothesis", "track"]
+
+#: axis permutation and signs: enu[i] = sign[i] * vec[perm[i]]
+_AXES: dict[str, tuple[tuple[int, int, int], tuple[float, float, float]]] = {
+    "enu": ((0, 1, 2), (1.0, 1.0, 1.0)),
+    "ned": ((1, 0, 2), (1.0, 1.0, -1.0)),
+    "en_depth": ((0, 1, 2), (1.0, 1.0, -1.0)),
+    "map": ((1, 0, 2), (1.0, 1.0, 1.0)),  # [x north, z east, h up]: enu = [z, x, h]
+    "nue": ((2, 0, 1), (1.0, 1.0, 1.0)),  # [x north, y up, z east]: enu = [z, x, y]
+}
+
+
+#: the offset of frames whose origin is the scenario's (compared by identity: the fast path of to_enu)
+_ZERO = [0.0, 0.0, 0.0]
+
+
+@dataclass
+class FrameContext:
+    """What is needed to bring every frame into the scenario's ENU frame (see the module doc)."""
+
+    scenario_frame: str = "local_enu"
+    #: radar site id -> its position [east, north, up] in the scenario frame, m
+    sites: dict[str, list[float]] = field(default_factory=dict)
+
+    @classmethod
+    def from_scenario(cls, scenario: Any | None) -> FrameContext:
+        """Frames of a :class:`services.player.scenario.Scenario` (None: defaults)."""
+        if scenario is None:
+            return cls()
+        sites: dict[str, list[float]] = {}
+        for i, spec in enumerate(scenario.simulators):
+            if spec.kind == "attitude":
+                p = scenario.simulator_params(i)
+                site_id, pos = getattr(p, "site_id", None), getattr(p, "site_position_m", None)
+                if isinstance(site_id, str) and pos is not None:
+                    sites[site_id] = [float(v) for v in pos]
+        return cls(scenario_frame=scenario.frame_id, sites=sites)
+
+    def axes(self, frame_id: str) -> tuple[str, list[float]]:
+        """(axes convention, ENU offset of the frame's origin) of a frame id."""
+        if frame_id.startswith("radar_nue/"):
+            return "nue", self.sites.get(frame_id.removeprefix("radar_nue/"), _ZERO)
+        if frame_id == "map":
+            return "map", _ZERO
+        if frame_id.endswith("_ned") or frame_id == "ned":
+            return "ned", _ZERO
+        if frame_id.endswith("en_depth"):
+            return "en_depth", _ZERO
+        return "enu", _ZERO
+
+    def to_enu(self, vec: Iterable[float], frame_id: str, axes: str | None = None) -> F64:
+        """A position in ``frame_id`` (or with the given axes convention, no offset) as scenario ENU."""
+        conv, offset = (axes, _ZERO) if axes is not None else self.axes(frame_id)
+        v = vec if isinstance(vec, list | tuple) else list(vec)
+        if conv == "enu" and offset is _ZERO:
+            return np.array(v, dtype=np.float64)
+        perm, sign = _AXES[conv]
+        return np.array([sign[0] * v[perm[0]], sign[1] * v[perm[1]], sign[2] * v[perm[2]]]) + np.asarray(offset)
+
+    def to_enu_array(self, arr: F64, frame_id: str, axes: str | None = None) -> F64:
+        """:meth:`to_enu` of every row of an (n, 3) array."""
+        conv, offset = (axes, _ZERO) if axes is not None else self.axes(frame_id)
+        perm, sign = _AXES[conv]
+        a = np.asarray(arr, dtype=np.float64).reshape(-1, 3)
+        return np.asarray(a[:, list(perm)] * np.asarray(sign) + np.asarray(offset), dtype=np.float64)
+
+    def cov_to_enu(self, cov: F64, frame_id: str, axes: str | None = None) -> F64:
+        """A 3x3 covariance in ``frame_id`` (or the given axes convention) in ENU axes."""
+        conv = axes if axes is not None else self.axes(frame_id)[0]
+        perm, sign = _AXES[conv]
+        t = np.zeros((3, 3))
+        for i in range(3):
+            t[i, perm[i]] = sign[i]
+        return np.asarray(t @ cov @ t.T, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One position of a message in scenario ENU: a truth sample, a fix, a hypothesis or a track.
+
+    ``entity`` names the thing within its key (platform, target, ``track 12``, ``auv1/h2``); ``platform`` is the
+    truth platform it estimates when the message says so (None for tracks, which need association). ``cov`` is
+    None when the message has no covariance; ``horizontal_only`` marks estimates whose vertical is not estimated
+    (their vertical variance is a nominal value).
+    """
+
+    kind: EstimateKind
+    entity: str
+    platform: str | None
+    stamp_ns: int
+    position: F64
+    cov: F64 | None = None
+    valid: bool = True
+    horizontal_only: bool = False
+    label: str = ""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+#: vertical variance given to 2-D covariances so their ellipsoids have a visible thickness, m^2
+NOMINAL_VERTICAL_VAR_M2 = 1.0
+
+
+def _cov2_enu(cov2: list[list[float]], north_first: bool) -> F64:
+    """A horizontal 2x2 covariance as 3x3 ENU (vertical nominal); ``north_first``: rows are (north, east)."""
+    c = np.asarray(cov2, dtype=np.float64)
+    if north_first:
+        c = c[::-1, ::-1]
+    out = np.zeros((3, 3))
+    out[:2, :2] = c
+    out[2, 2] = NOMINAL_VERTICAL_VAR_M2
+    return out
+
+
+def estimates_of(key: str, msg: Message, ctx: FrameContext) -> list[Estimate]:
+    """The positions a message carries, in scenario ENU (empty for messages that carry none)."""
+    name = type(msg).__name__
+    fn = _EXTRACTORS.get(name)
+    if fn is not None:
+        return fn(key, msg, ctx)
+    if isinstance(msg, Fix):
+        return _fix(key, msg, ctx)
+    if isinstance(msg, Track):
+        return _track(key, msg, ctx)
+    return []
+
+
+def _truth(key: str, msg: Any, ctx: FrameContext) -> list[Estimate]:
+    assert isinstance(msg, Truth)
+    pos = ctx.to_enu(msg.position_m, msg.header.frame_id)
+    extra: dict[str, Any] = {}
+    if msg.velocity_mps is not None:
+        conv = ctx.axes(msg.header.frame_id)[0]
+        extra["velocity"] = ctx.to_enu(msg.velocity_mps, msg.header.frame_id, axes=conv)
+    if msg.attitude_rad is not None:
+        extra["attitude_rad"] = list(msg.attitude_rad)
+    return [Estimate("truth", msg.platform, msg.platform, msg.header.stamp_ns, pos, label=msg.platform, extra=extra)]
+
+
+def _fix(key: str, msg: Any, ctx: FrameContext) -> list[Estimate]:
+    f = msg.header.frame_id
+    pos = ctx.to_enu(msg.position_m, f)
+    cov = ctx.cov_to_enu(np.asarray(msg.position_cov_m2, dtype=np.float64), f)
+    out = [Estimate("fix", msg.platform, msg.platform, msg.header.stamp_ns, pos, cov, msg.valid, label=msg.status)]
+    for h in msg.hypotheses:
+        out.append(
+            Estimate(
+                "hypothesis",
+                f"{msg.platform}/h{h.hypothesis_id}",
+                msg.platform,
+                msg.header.stamp_ns,
+                ctx.to_enu(h.position_m, f),
+                ctx.cov_to_enu(np.asarray(h.position_cov_m2, dtype=np.float64), f),
+                label=f"h{h.hypothesis_id} p={h.probability:.3f}",
+                extra={"probability": h.probability, "hypothesis_id": h.hypothesis_id},
+            )
+        )
+    return out
+
+
+def _track(key: str, msg: Any, ctx: FrameContext) -> list[Estimate]:
+    f = msg.header.frame_id
+    cov = np.asarray(msg.covariance, dtype=np.float64)[:3, :3]
+    ent = f"{msg.tracker}/{msg.track_id}"
+    return [
+        Estimate(
+            "track",
+            ent,
+            None,
+            msg.header.stamp_ns,
+            ctx.to_enu(msg.state[:3], f),
+            ctx.cov_to_enu(cov, f),
+            msg.status != "DROPPED",
+            label=f"{msg.track_id} {msg.status}",
+        )
+    ]
+
+
+def _terrain_fix(key: str, msg: Any, ctx: FrameContext) -> list[Estimate]:
+    vehicle = key.split("/")[3] if key.count("/") >= 3 else "terrain"
+    pos = ctx.to_enu([msg.x_corr_m, msg.z_corr_m, msg.h_corr_m], "map")
+    cov = _cov2_enu(msg.cov_xz_m2, north_first=True)  # (x north, z east)
+    cov[2, 2] = max(float(msg.cov_vert[1][1]), 0.0)
+    return [
+        Estimate(
+            "fix",
+            vehicle,
+            vehicle,
+            msg.header.stamp_ns,
+            pos,
+            cov,
+            True,
+            label=f"fix ({msg.i_star},{msg.j_star})",
+            extra={"dx_m": msg.dx_m, "dz_m": msg.dz_m, "dh_m": msg.dh_m},
+        )
+    ]
+
+
+def _pcl_report(key: str, msg: Any, ctx: FrameContext) -> list[Estimate]:
+    f = msg.header.frame_id
+    out = []
+    for t in msg.tracks:
+        if t.status == "DROPPED":
+            continue
+        cov = np.asarray(t.cov_enu, dtype=np.float64)[:3, :3]
+        out.append(
+            Estimate(
+                "track",
+                f"track {t.track_id}",
+                None,
+                msg.header.stamp_ns,
+                ctx.to_enu(t.state_enu[:3], f),
+                ctx.cov_to_enu(cov, f),
+                t.status == "CONFIRMED",
+                label=f"{t.track_id} {t.status[0]}",
+                extra={"track_id": t.track_id, "status": t.status, "velocity": np.asarray(t.state_enu[3:])},
+            )
+        )
+    return out
+
+
+def _attitude(key: str, msg: Any, ctx: FrameContext) -> list[Estimate]:
+    if msg.state is None:
+        return []
+    f = msg.header.frame_id
+    x = msg.state
+    pos = ctx.to_enu([x[0], x[3], x[6]], f)
+    cov = None
+    if msg.state_cov is not None:
+        p = np.asarray(msg.state_cov, dtype=np.float64)[np.ix_([0, 3, 6], [0, 3, 6])]
+        cov = ctx.cov_to_enu(p, f)
+    label = f"{msg.target_id} ψ={msg.psi_deg:.0f}°" if msg.psi_deg is not None else msg.target_id
+    return [
+        Estimate("fix", msg.target_id, msg.target_id, msg.header.stamp_ns, pos, cov, msg.status == "VALID", label=label)
+    ]
+
+
+def _lbl_fix(key: str, msg: Any, ctx: FrameContext) -> list[Estimate]:
+    out: list[Estimate] = []
+    if msg.valid and msg.position_m is not None and msg.position_cov_m2 is not None:
+        cov = ctx.cov_to_enu(np.asarray(msg.position_cov_m2, dtype=np.float64), "", axes="en_depth")
+        pos = ctx.to_enu(msg.position_m, "", axes="en_depth")
+        out.append(Estimate("fix", msg.platform, msg.platform, msg.header.stamp_ns, pos, cov, True, label=msg.status))
+    for h in msg.hypotheses:
+        out.append(
+            Estimate(
+                "hypothesis",
+                f"{msg.platform}/h{h.hypothesis_id}",
+                msg.platform,
+                msg.header.stamp_ns,
+                ctx.to_enu(h.position_m, "", axes="en_depth"),
+                ctx.cov_to_enu(np.asarray(h.position_cov_m2, dtype=np.float64), "", axes="en_depth"),
+                not msg.valid,
+                label=f"h{h.hypothesis_id} p={h.probability:.3f}",
+                extra={"probability": h.probability, "hypothesis_id": h.hypothesis_id},
+            )
+        )
+    return out
+
+
+def _rd_fix(key: str, msg: Any, ctx: FrameContext) -> list[Estimate]:
+    pos = ctx.to_enu(msg.position_ned_m, "", axes="ned")
+    cov = _cov2_enu(msg.cov_xy_m2, north_first=True)  # (x north, y east)
+    return [
+        Estimate(
+            "fix",
+            msg.auv_id,
+            msg.auv_id,
+            msg.header.stamp_ns,
+            pos,
+            cov,
+            msg.valid,
+            horizontal_only=True,
+            label=f"{msg.estimator} {msg.status}",
+            extra={"estimator": msg.estimator, "kind": msg.kind, "cycle_status": msg.cycle_status},
+        )
+    ]
+
+
+_EXTRACTORS = {
+    "Truth": _truth,
+    "TerrainFix": _terrain_fix,
+    "PclScanReport": _pcl_report,
+    "AttitudeEstimate": _attitude,
+    "LblFix": _lbl_fix,
+    "RdNavFix": _rd_fix,
+}
+
+__all__ = ["NOMINAL_VERTICAL_VAR_M2", "Estimate", "FrameContext", "estimates_of"]

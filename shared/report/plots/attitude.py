@@ -1,0 +1,149 @@
+"""attitude (digest 004): heading, pitch and roll of every target against truth, per radar site.
+
+Per instance (``attitude/<site>``, estimates on ``fixstream/fix/attitude/<site>/<target>``): plan view of the
+targets (truth, filtered positions with 3σ ellipses of the position block of ``state_cov``, the radar), the
+error of the line-of-sight angles ψᴸ, ϑᴸ, γᴸ — the paper's metric (§3.3) — against time with the filter's ±3σ,
+the 3-D position NEES, and the angles ψ, ϑ, γ (earth frame) against the true ones. Errors are computed as the
+mc plugin computes them (:class:`services.attitude.metrics.RunRecorder`: wrapped estimate − truth at the truth
+sample of the same stamp, truth moved to the radar frame). Headline: LOS-angle RMS from scan 40 on (the
+paper's "units of degrees after ~40 contacts"), scans per target, NEES.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from schemas.attitude import AttitudeEstimate
+from services.attitude.mc import radar_frame_truth
+from services.attitude.metrics import RunRecorder
+from shared.foxglove.frames import estimates_of
+
+from .common import RunData, Section, decimate, error_series, new_figure, r, render, rms, standard_figures
+
+KIND = "attitude"
+LOS = (("psi_los", "ψᴸ heading"), ("theta_los", "ϑᴸ pitch"), ("gamma_los", "γᴸ roll"))
+#: the paper's "after ~40 contacts"
+FROM_SCAN = 40
+
+
+def build(data: RunData, metrics: dict[str, dict[str, Any]]) -> list[Section]:
+    return [_section(data, src, metrics.get(src.split("/", 1)[1])) for src in data.sources(KIND)]
+
+
+def _section(data: RunData, source: str, entry: dict[str, Any] | None) -> Section:
+    instance = source.split("/", 1)[1]
+    ests = [(ev.key, ev.msg) for ev in data.outputs[source] if isinstance(ev.msg, AttitudeEstimate)]
+    site = ests[0][1].site_id if ests else instance
+    sec = Section(KIND, instance, f"Aircraft attitude from radar plots — site {site}")
+    site_pos = data.ctx.sites.get(site)
+    if site_pos is None:
+        sec.notes.append(f"position of radar site {site} unknown (no scenario): taken at the origin")
+        site_pos = [0.0, 0.0, 0.0]
+    by_target: dict[str, list[AttitudeEstimate]] = {}
+    for _, m in ests:
+        if m.status != "COASTING":
+            by_target.setdefault(m.target_id, []).append(m)
+    records: dict[str, dict[str, Any]] = {}
+    # the mc plugin's per-target records are exactly these errors (same code): reuse them when computed
+    pm: dict[str, Any] | None = entry.get("metrics") if entry else None
+    planned: dict[str, dict[str, Any]] = dict(pm["targets"]) if pm and pm.get("site_id") == site else {}
+    series = []
+    plan: dict[str, tuple[Any, Any]] = {}
+    for tid, msgs in by_target.items():
+        truth = data.truth.get(tid)
+        pos_est = [e for (key, m) in ests if m.target_id == tid for e in estimates_of(key, m, data.ctx)]
+        s = error_series(tid, pos_est, truth, horizontal_only=False)
+        if s is not None:
+            series.append(s)
+        if pos_est:
+            covs = [e.cov for e in pos_est]
+            plan[tid] = (
+                np.array([e.position[:2] for e in pos_est]),
+                np.array(covs) if all(c is not None for c in covs) else None,
+            )
+        records[tid] = planned.get(tid) or _record(data, tid, msgs, site_pos)
+    truths = {t: data.truth[t].pos[:, :2] for t in by_target if t in data.truth}
+    figs, head = standard_figures(
+        series, plan_truths=truths, plan_estimates=plan, points={f"radar {site}": np.array([site_pos[:2]])}
+    )
+    # the standard error figure is the position error; the paper's metric is the LOS angles: add them
+    sec.figures += figs
+    sec.figures.append(_los_errors(records))
+    sec.figures.append(_angles(data, by_target))
+    pooled: dict[str, list[float]] = {name: [] for name, _ in LOS}
+    scans = {tid: len(rec["stamp_ns"]) for tid, rec in records.items()}
+    first = (
+        FROM_SCAN if max(scans.values(), default=0) >= FROM_SCAN + 5 else max(1, max(scans.values(), default=0) // 2)
+    )
+    for rec in records.values():
+        for name, _ in LOS:
+            pooled[name] += [v for v in rec["err"][name][first - 1 :] if v is not None and math.isfinite(v)]
+    sec.headline = {
+        "targets": len(by_target),
+        "estimates": len(ests),
+        "scans_per_target_max": max(scans.values(), default=0),
+        f"los_rms_deg_from_scan_{first}": {name: r(rms(v)) for name, v in pooled.items()},
+        **{k: v for k, v in head.items() if k.startswith("nees")},
+        "position_error_rms_m": head.get("horizontal_error_rms_m"),
+    }
+    return sec
+
+
+def _record(data: RunData, tid: str, msgs: list[AttitudeEstimate], site_pos: list[float]) -> dict[str, Any]:
+    """The mc plugin's per-target record (errors at every truth sample of the target)."""
+    by_stamp = {m.header.stamp_ns: m for m in msgs}
+    rec = RunRecorder()
+    truths = [ev.msg for ev in data.events_on(f"fixstream/truth/{tid}")]
+    for tr in truths:
+        rec.add(by_stamp.get(tr.header.stamp_ns), radar_frame_truth(tr, site_pos))  # type: ignore[arg-type]
+    return rec.rec
+
+
+def _los_errors(records: dict[str, dict[str, Any]]) -> Any:
+    fig, axs = new_figure(rows=3, height=2.2)
+    for row, (name, label) in enumerate(LOS):
+        ax = axs[row][0]
+        for tid, rec in records.items():
+            t = np.array(rec["stamp_ns"], dtype=np.float64) / 1e9
+            e = np.array([np.nan if v is None else v for v in rec["err"][name]], dtype=np.float64)
+            s = np.array([np.nan if v is None else v for v in rec["sigma"][name]], dtype=np.float64)
+            idx = decimate(t.size)
+            (line,) = ax.plot(t[idx], e[idx], lw=0.9, label=tid)
+            ax.fill_between(t[idx], -3 * s[idx], 3 * s[idx], color=line.get_color(), alpha=0.12)
+        ax.axhline(0.0, color="k", lw=0.5)
+        ax.set_ylim(-60, 60)
+        ax.set_ylabel(f"{label} error, deg")
+        ax.set_xlabel("t, s")
+        ax.legend(loc="upper right", ncol=4)
+    axs[0][0].set_title("line-of-sight angle errors (shaded: ±3σ reported by the filter; axis clipped at ±60°)")
+    return render(fig, "LOS angle errors against time", "the paper's metric (§3.3): wrapped estimate − truth per scan")
+
+
+def _angles(data: RunData, by_target: dict[str, list[AttitudeEstimate]]) -> Any:
+    fig, axs = new_figure(rows=3, height=2.2)
+    colors = [f"C{i}" for i in range(10)]
+    for row, (field, idx_true, label) in enumerate(
+        (("psi_deg", 0, "heading ψ"), ("theta_deg", 1, "pitch ϑ"), ("gamma_deg", 2, "roll γ"))
+    ):
+        ax = axs[row][0]
+        for i, (tid, msgs) in enumerate(by_target.items()):
+            c = colors[i % len(colors)]
+            t = np.array([m.header.stamp_ns / 1e9 for m in msgs])
+            v = np.array([np.nan if getattr(m, field) is None else getattr(m, field) for m in msgs], dtype=np.float64)
+            k = decimate(t.size)
+            ax.plot(t[k], v[k], ".", ms=3, color=c, label=f"{tid}")
+            ts = data.truth.get(tid)
+            if ts is not None and ts.attitude_rad is not None:
+                deg = np.degrees(ts.attitude_rad[:, idx_true])
+                if idx_true == 0:
+                    deg = np.mod(deg, 360.0)
+                j = decimate(ts.t_s.size)
+                ax.plot(ts.t_s[j], deg[j], "-", lw=0.8, color=c, alpha=0.7)
+        ax.set_ylabel(f"{label}, deg")
+        ax.set_xlabel("t, s")
+        ax.legend(loc="upper right", ncol=4)
+    axs[0][0].set_title("earth-frame angles: estimates (dots) and truth (lines)")
+    return render(fig, "Attitude angles against truth", "")

@@ -1,0 +1,174 @@
+"""Read a recording for the report: every fixstream message of one or more MCAP files, decoded, with progress.
+
+A recording is a file, several files (a rotated recording) or a directory of them (:func:`recording_files`
+order). Records on channels that are not fixstream's (the Foxglove scene and map channels the recorder adds,
+``foxglove.*`` schemas) are counted and skipped. Anything else that is wrong raises :class:`ReportError`
+naming the file (and topic) and the problem:
+
+* a missing, empty, non-MCAP or corrupt file (:class:`shared.mcap_io.McapReadError`);
+* a message that does not decode to its model (its topic, the field and why);
+* a **truncated** file — one that does not end with the MCAP footer and magic, as a recorder killed mid-write
+  leaves it. Its complete chunks are readable, so ``allow_truncated=True`` reports them instead (with a note).
+
+A finalised file goes through the fast path (:mod:`.fastread`); any file it does not take — truncated, corrupt,
+holding an invalid message — is read by :mod:`shared.mcap_io`, which gives the errors above. The garbage
+collector is paused while the messages are created (they form no cycles; it would only rescan them).
+"""
+
+from __future__ import annotations
+
+import gc
+import os
+import sys
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from schemas import Message, ScenarioMarker
+from services.player.simulators import Event
+from shared.mcap_io import MAGIC, SCHEMA_PREFIX, McapReadError, decode_record, iter_records, recording_files
+
+#: builds an Event without NamedTuple's argument parsing (the read loop makes hundreds of thousands)
+_new_event = tuple.__new__
+
+
+class ReportError(RuntimeError):
+    """A recording (or a scenario) the report cannot use; ``str()`` says which file and what is wrong."""
+
+
+#: one decoded message of the recording: (``header.stamp_ns``, key = the MCAP topic, message)
+Item = Event
+
+
+@dataclass
+class Recording:
+    """Every fixstream message of the files, in file order, and what was skipped."""
+
+    files: list[Path]
+    items: list[Item] = field(default_factory=list)
+    #: records on non-fixstream channels (schema name -> count), e.g. the Foxglove channels
+    foreign: Counter[str] = field(default_factory=Counter)
+    #: notes for the reader (truncated files read anyway, several scenario runs, ...)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def markers(self) -> list[tuple[str, ScenarioMarker]]:
+        return [(it.key, it.msg) for it in self.items if isinstance(it.msg, ScenarioMarker)]
+
+
+def input_files(paths: Sequence[str | os.PathLike[str]]) -> list[Path]:
+    """The MCAP files named: files as given, directories expanded to their ``*.mcap`` in recording order."""
+    out: list[Path] = []
+    for raw in paths:
+        p = Path(raw)
+        if p.is_dir():
+            found = recording_files(p)
+            if not found:
+                raise ReportError(f"{p}: no .mcap file in this directory")
+            out += found
+        elif not p.exists():
+            raise ReportError(f"{p}: no such file or directory")
+        else:
+            out.append(p)
+    if not out:
+        raise ReportError("no recording given")
+    return out
+
+
+def is_finalised(path: Path) -> bool:
+    """True if the file ends with the MCAP magic (its writer finished it: summary, footer, magic)."""
+    try:
+        size = path.stat().st_size
+        if size < 2 * len(MAGIC):
+            return False
+        with path.open("rb") as f:
+            f.seek(size - len(MAGIC))
+            return f.read(len(MAGIC)) == MAGIC
+    except OSError:
+        return False
+
+
+def read_recording(
+    paths: Sequence[str | os.PathLike[str]], *, allow_truncated: bool = False, progress: bool = True
+) -> Recording:
+    """Decode every fixstream message of the recording (see the module doc for what raises)."""
+    from tqdm import tqdm
+
+    files = input_files(paths)
+    rec = Recording(files=files)
+    gc_was_enabled = gc.isenabled()
+    gc.disable()  # hundreds of thousands of new objects and no cycles: the collector would only rescan them
+    try:
+        with tqdm(desc="reading", unit=" msg", unit_scale=True, file=sys.stderr, disable=not progress) as bar:
+            for path in files:
+                bar.set_postfix_str(path.name)
+                if is_finalised(path) and _read_fast(path, rec, bar):
+                    continue
+                _read_checked(path, rec, bar, allow_truncated)
+    finally:
+        if gc_was_enabled:
+            gc.enable()
+    return rec
+
+
+def _read_fast(path: Path, rec: Recording, bar: Any) -> bool:
+    """The fast path (:mod:`.fastread`) for a finalised file; False if the file needs the checked reader."""
+    from .fastread import Fallback, read_messages
+
+    items: list[Event] = []
+    foreign: Counter[str] = Counter()
+    append = items.append
+
+    def on_message(topic: str, msg: Message) -> None:
+        append(_new_event(Event, (msg.header.stamp_ns, topic, msg)))
+        if len(items) % 8192 == 0:
+            bar.update(8192)
+
+    try:
+        read_messages(path, on_message, lambda name: foreign.update((name,)))
+    except (Fallback, OSError):
+        bar.update(-(len(items) - len(items) % 8192))
+        return False
+    bar.update(len(items) % 8192 + sum(foreign.values()))
+    rec.items += items
+    rec.foreign.update(foreign)
+    return True
+
+
+def _read_checked(path: Path, rec: Recording, bar: Any, allow_truncated: bool) -> None:
+    """:mod:`shared.mcap_io`: any file, with its precise errors; truncated files per ``allow_truncated``."""
+    n_before = len(rec.items)
+    pending = 0
+    try:
+        for record in iter_records(path):
+            pending += 1
+            if pending == 4096:
+                bar.update(pending)
+                pending = 0
+            if not record.schema_name.startswith(SCHEMA_PREFIX):
+                rec.foreign[record.schema_name or f"<no schema> ({record.message_encoding})"] += 1
+                continue
+            try:
+                msg = decode_record(record)
+            except McapReadError as exc:
+                raise ReportError(
+                    f"{path}: message on {exc.where} (log time {record.log_time_ns} ns): {exc.problem}"
+                ) from None
+            rec.items.append(_new_event(Event, (msg.header.stamp_ns, record.topic, msg)))
+    except McapReadError as exc:
+        raise ReportError(str(exc)) from None
+    bar.update(pending)
+    if not is_finalised(path):
+        n = len(rec.items) - n_before
+        what = (
+            f"{path}: truncated: the file does not end with the MCAP footer and magic (a recorder that was "
+            f"killed, or a copy cut short); {n} messages are readable up to its last complete chunk"
+        )
+        if not allow_truncated:
+            raise ReportError(what + "; --allow-truncated reports them")
+        rec.notes.append(what + ", reported")
+
+
+__all__ = ["Item", "Recording", "ReportError", "input_files", "is_finalised", "read_recording"]

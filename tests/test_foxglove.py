@@ -1,0 +1,304 @@
+"""The Foxglove channels (issue 8): the recorder's scene and map channels read back and checked.
+
+* End to end: the demo scenario, shortened and given a geodetic ``origin``, through the repository's compose
+  stack (``fixstream up``) with ``FIXSTREAM_RECORDER_FOXGLOVE=true``. Every record on a ``/foxglove/...`` channel
+  has Foxglove's own schema (``foxglove.SceneUpdate`` / ``LocationFix`` / ``LocationFixes``: the schema data is
+  the foxglove-sdk's FileDescriptorSet byte for byte), decodes with the ``protobuf`` package against that
+  schema and re-encodes to the same bytes (no unknown or malformed field). Each scene entity matches the
+  fixstream message it came from, recomputed here independently of ``shared/foxglove``: its position in the
+  scenario's ENU frame, and its covariance rebuilt from the ellipsoid (rotation from the quaternion, variances
+  from the 3σ diameters) equal to the message's covariance in ENU axes. Each map fix is at the right great-circle
+  distance and bearing from the origin, its altitude the origin's plus "up". The fixstream channels are the same
+  as without the Foxglove channels (every one decodes; one channel per key).
+* Units: ellipsoid axes of known covariances, the quaternion of known rotations, the geodetic conversion.
+* LBL and group navigation (from their cores): both hypotheses are entities while the launch is ambiguous;
+  group fixes carry their 2-D covariance and a nominal vertical axis.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+from collections import Counter, defaultdict
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+from conftest import REPO, fixstream_cmd
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from mcap.reader import make_reader
+
+from schemas import Message, ScenarioMarker, Truth
+from schemas.attitude import AttitudeEstimate
+from schemas.lbl_nav import LblFix
+from schemas.pcl_tracker import PclScanReport
+from schemas.rd_nav import RdNavFix
+from schemas.terrain_nav import TerrainFix
+from shared.foxglove.convert import N_SIGMA, POINT_SIZE_M, Converter, Origin, ellipsoid, quaternion
+from shared.foxglove.frames import NOMINAL_VERTICAL_VAR_M2, FrameContext
+from shared.foxglove.recording import FoxgloveChannels
+from shared.mcap_io import decode_record, iter_records, recording_files
+from shared.report.offline import lbl_items, rd_items, write_recording
+
+ORIGIN = {"lat_deg": 43.05, "lon_deg": 131.88, "alt_m": 12.0}
+R_EARTH = 6_371_008.8
+
+
+# ----- independent references ---------------------------------------------------------------------------------
+
+
+def quat_to_matrix(q: Any) -> np.ndarray:
+    x, y, z, w = q.x, q.y, q.z, q.w
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def cov_of_sphere(sphere: Any) -> np.ndarray:
+    rot = quat_to_matrix(sphere.pose.orientation)
+    sig = np.array([sphere.size.x, sphere.size.y, sphere.size.z]) / (2.0 * N_SIGMA)
+    return np.asarray(rot @ np.diag(sig**2) @ rot.T)
+
+
+def haversine(lat1: float, lon1: float, lat2: float, lon2: float) -> tuple[float, float]:
+    """(distance m, bearing rad clockwise from north) on a sphere of the mean Earth radius."""
+    p1, p2, dl = math.radians(lat1), math.radians(lat2), math.radians(lon2 - lon1)
+    a = math.sin((p2 - p1) / 2) ** 2 + math.cos(p1) * math.cos(p2) * math.sin(dl / 2) ** 2
+    d = 2 * R_EARTH * math.asin(math.sqrt(a))
+    b = math.atan2(
+        math.sin(dl) * math.cos(p2), math.cos(p1) * math.sin(p2) - math.sin(p1) * math.cos(p2) * math.cos(dl)
+    )
+    return d, b
+
+
+def expected(msg: Message, site_enu: dict[str, list[float]]) -> list[tuple[str, np.ndarray, np.ndarray | None]]:
+    """(entity id, ENU position, ENU covariance or None) a message should become, computed from its fields."""
+    if isinstance(msg, Truth):
+        return [(msg.platform, np.array(msg.position_m), None)]
+    if isinstance(msg, TerrainFix):
+        cxz = np.array(msg.cov_xz_m2)  # (x north, z east)
+        cov = np.array([[cxz[1, 1], cxz[1, 0], 0.0], [cxz[0, 1], cxz[0, 0], 0.0], [0.0, 0.0, msg.cov_vert[1][1]]])
+        return [("tan1", np.array([msg.z_corr_m, msg.x_corr_m, msg.h_corr_m]), cov)]
+    if isinstance(msg, PclScanReport):
+        return [
+            (f"track {t.track_id}", np.array(t.state_enu[:3]), np.array(t.cov_enu)[:3, :3])
+            for t in msg.tracks
+            if t.status != "DROPPED"
+        ]
+    if isinstance(msg, AttitudeEstimate) and msg.state is not None:
+        x = msg.state  # [x north, vx, ax, y up, vy, ay, z east, vz, az]
+        pos = np.array([x[6], x[0], x[3]]) + np.array(site_enu[msg.site_id])
+        p = np.array(msg.state_cov)
+        idx = [6, 0, 3]  # east, north, up
+        return [(msg.target_id, pos, p[np.ix_(idx, idx)])]
+    return []
+
+
+def proto_class(schema_name: str, data: bytes) -> Any:
+    fds = descriptor_pb2.FileDescriptorSet.FromString(data)
+    pool = descriptor_pool.DescriptorPool()
+    for fd in fds.file:
+        pool.Add(fd)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema_name))
+
+
+def foxglove_records(path: Path) -> list[tuple[str, str, int, Any]]:
+    """(topic, schema name, publish time, decoded protobuf) of every Foxglove record; checks schema and bytes."""
+    from foxglove import messages as fm
+
+    out = []
+    classes: dict[int, Any] = {}
+    with path.open("rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            if schema is None or not schema.name.startswith("foxglove."):
+                continue
+            assert channel.message_encoding == "protobuf" and schema.encoding == "protobuf"
+            official = getattr(fm, schema.name.removeprefix("foxglove.")).get_schema()
+            assert schema.data == bytes(official.data), f"{schema.name}: not Foxglove's own schema"
+            if schema.id not in classes:
+                classes[schema.id] = proto_class(schema.name, schema.data)
+            decoded = classes[schema.id].FromString(message.data)
+            assert decoded.SerializeToString(deterministic=True) == message.data, channel.topic
+            out.append((channel.topic, schema.name, message.publish_time, decoded))
+    return out
+
+
+# ----- end to end -----------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def stack_recording(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    tmp = tmp_path_factory.mktemp("foxglove")
+    doc = yaml.safe_load((REPO / "scenarios" / "demo.yaml").read_text())
+    doc.update(name="demo_foxglove", duration_s=24.0, origin=ORIGIN)
+    for sim in doc["simulators"]:
+        if sim["kind"] == "nav_platform":
+            sim["params"]["legs"] = [{"duration_s": 12.0}, {"duration_s": 12.0, "turn_rate_dps": 6.0}]
+        if sim["kind"] == "terrain_nav":
+            sim["params"]["failures"] = []
+            sim["params"]["nan_samples"] = 0  # (NaN samples do not validate: the recorder refuses them)
+    scenarios = tmp / "scenarios"
+    scenarios.mkdir()
+    (scenarios / "demo_foxglove.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    env = {k: v for k, v in os.environ.items() if not k.startswith("FIXSTREAM_")}
+    env.update(
+        {
+            "FIXSTREAM_SCENARIO": str(scenarios / "demo_foxglove.yaml"),
+            "FIXSTREAM_RATE": "0",
+            "FIXSTREAM_RECORDER_FOXGLOVE": "true",
+            "FIXSTREAM_RECORDER_SCENARIOS_DIR": str(scenarios),
+        }
+    )
+    done = subprocess.run(
+        fixstream_cmd("up", "-f", str(REPO / "compose.yaml"), "--recordings", str(tmp / "rec"), "--no-color"),
+        cwd=tmp,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, (done.stdout + done.stderr)[-5000:]
+    (path,) = recording_files(tmp / "rec")
+    sites = {
+        s["params"]["site_id"]: s["params"].get("site_position_m", [0.0, 0.0, 0.0])
+        for s in doc["simulators"]
+        if s["kind"] == "attitude"
+    }
+    return {"path": path, "sites": sites, "log": done.stdout}
+
+
+def test_fixstream_channels_are_unchanged(stack_recording: dict[str, Any]) -> None:
+    counts: Counter[str] = Counter()
+    end = None
+    for rec in iter_records(stack_recording["path"]):
+        if rec.schema_name.startswith("fixstream."):
+            msg = decode_record(rec)  # every fixstream record still decodes
+            assert rec.topic.startswith("fixstream/")
+            counts[rec.topic] += 1
+            if isinstance(msg, ScenarioMarker) and msg.event == "end":
+                end = msg
+        else:
+            assert rec.topic.startswith("/foxglove/") and rec.schema_name.startswith("foxglove."), rec.topic
+    assert end is not None and sum(end.published.values()) > 1000
+    for key, n in end.published.items():  # everything the player published is there, once
+        assert counts[key] == n, key
+
+
+def test_scene_and_map_channels_validate_and_match_their_fixes(stack_recording: dict[str, Any]) -> None:
+    path = stack_recording["path"]
+    fox = foxglove_records(path)
+    kinds = Counter(name for _, name, _, _ in fox)
+    assert kinds["foxglove.SceneUpdate"] > 100 and kinds["foxglove.LocationFix"] > 100
+    assert kinds["foxglove.LocationFixes"] > 0
+    # index the Foxglove messages by (topic, stamp)
+    scenes: dict[tuple[str, int], list[Any]] = defaultdict(list)
+    locs: dict[tuple[str, int], list[Any]] = defaultdict(list)
+    for topic, name, stamp, m in fox:
+        key = topic.split("/", 3)[3]
+        (scenes if name == "foxglove.SceneUpdate" else locs)[(key, stamp)].append(m)
+    origin = Origin(**{"lat_deg": ORIGIN["lat_deg"], "lon_deg": ORIGIN["lon_deg"], "alt_m": ORIGIN["alt_m"]})
+    checked: Counter[str] = Counter()
+    for rec in iter_records(path):
+        if not rec.schema_name.startswith("fixstream."):
+            continue
+        msg = decode_record(rec)
+        want = expected(msg, stack_recording["sites"])
+        if not want:
+            continue
+        key = (rec.topic.removeprefix("fixstream/"), msg.header.stamp_ns)
+        (update,) = scenes[key]
+        entities = {e.id: e for e in update.entities}
+        assert set(entities) == {w[0] for w in want}, key
+        for ent_id, pos, cov in want:
+            e = entities[ent_id]
+            assert e.frame_id == "local_enu"
+            (sphere,) = e.spheres
+            p = sphere.pose.position
+            assert np.allclose([p.x, p.y, p.z], pos, rtol=0, atol=1e-6), (key, ent_id)
+            if cov is None:
+                assert (sphere.size.x, sphere.size.y, sphere.size.z) == (POINT_SIZE_M,) * 3
+            else:
+                scale = max(1.0, float(np.abs(cov).max()))
+                assert np.allclose(cov_of_sphere(sphere), cov, rtol=0, atol=1e-6 * scale), (key, ent_id)
+        fixes = [f for m in locs.get(key, []) for f in (m.fixes if hasattr(m, "fixes") else [m])]
+        assert len(fixes) == len(want), key
+        for (ent_id, pos, _), fix in zip(want, fixes, strict=True):
+            d, bearing = haversine(origin.lat_deg, origin.lon_deg, fix.latitude, fix.longitude)
+            horiz = math.hypot(pos[0], pos[1])
+            assert d == pytest.approx(horiz, rel=5e-3, abs=0.5), (key, ent_id)
+            if horiz > 100:
+                assert abs(math.remainder(bearing - math.atan2(pos[0], pos[1]), math.tau)) < 5e-3
+            assert fix.altitude == pytest.approx(origin.alt_m + pos[2], abs=1e-6)
+        checked[type(msg).__name__] += 1
+    assert set(checked) == {"Truth", "TerrainFix", "PclScanReport", "AttitudeEstimate"}, checked
+    assert min(checked.values()) >= 3
+
+
+# ----- units ----------------------------------------------------------------------------------------------------
+
+
+def sphere_of(size: list[float], q: list[float]) -> SimpleNamespace:
+    """The fields of a SpherePrimitive that :func:`cov_of_sphere` reads."""
+    return SimpleNamespace(
+        pose=SimpleNamespace(orientation=SimpleNamespace(x=q[0], y=q[1], z=q[2], w=q[3])),
+        size=SimpleNamespace(x=size[0], y=size[1], z=size[2]),
+    )
+
+
+def test_ellipsoid_of_known_covariances() -> None:
+    size, q = ellipsoid(np.diag([4.0, 9.0, 1.0]))
+    assert sorted(size) == pytest.approx(sorted([6 * 2.0, 6 * 3.0, 6 * 1.0]))
+    rot = np.array([[math.cos(0.7), -math.sin(0.7), 0.0], [math.sin(0.7), math.cos(0.7), 0.0], [0.0, 0.0, 1.0]])
+    cov = rot @ np.diag([100.0, 4.0, 0.25]) @ rot.T
+    size, q = ellipsoid(cov)
+    assert np.allclose(cov_of_sphere(sphere_of(size, q)), cov, atol=1e-9)
+    assert np.linalg.norm(q) == pytest.approx(1.0)
+    for angle in (0.0, 2.0, 3.1):
+        c, s = math.cos(angle), math.sin(angle)
+        m = np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+        x, y, z, w = quaternion(m)
+        assert np.allclose(quat_to_matrix(SimpleNamespace(x=x, y=y, z=z, w=w)), m, atol=1e-12)
+
+
+def test_geodetic_origin() -> None:
+    o = Origin(0.0, 10.0, 5.0)
+    lat, lon, alt = o.to_geodetic([111_319.49, 0.0, 7.0])  # one degree of longitude on the equator
+    assert lat == 0.0 and lon == pytest.approx(11.0, abs=1e-6) and alt == 12.0
+    lat, lon, _ = Origin(60.0, 0.0).to_geodetic([0.0, 111_412.0, 0.0])  # ~ one degree of latitude at 60°
+    assert lat == pytest.approx(61.0, abs=2e-3) and lon == 0.0
+
+
+def test_lbl_hypotheses_and_group_fixes_become_entities(tmp_path: Path) -> None:
+    conv = Converter(FrameContext(), Origin(43.0, 131.9))
+    channels = FoxgloveChannels(conv)
+    lbl, rd = lbl_items(seed=3, t_end_s=40.0), rd_items(seed=2, duration_s=600.0)
+    (path,) = write_recording(tmp_path / "rec", lbl, rd, foxglove=channels)
+    assert channels.written > 100 and not channels.errors
+    fox = foxglove_records(path)
+    ambiguous = [f for _, f in lbl if isinstance(f, LblFix) and len(f.hypotheses) == 2 and not f.valid]
+    assert ambiguous
+    lbl_scenes = [m for t, n, _, m in fox if t == "/foxglove/scene/fix/lbl/auv1" and n == "foxglove.SceneUpdate"]
+    two = [m for m in lbl_scenes if {e.id for e in m.entities} == {"auv1/h1", "auv1/h2"}]
+    assert len(two) == len(ambiguous)
+    rd_fixes = {(f.auv_id, f.header.stamp_ns): f for _, f in rd if isinstance(f, RdNavFix)}
+    seen = 0
+    for topic, name, stamp, m in fox:
+        if name != "foxglove.SceneUpdate" or not topic.startswith("/foxglove/scene/fix/rd/"):
+            continue
+        (e,) = m.entities
+        f = rd_fixes[(e.id, stamp)]
+        cxy = np.array(f.cov_xy_m2)  # (north, east)
+        want = np.array([[cxy[1, 1], cxy[1, 0], 0.0], [cxy[0, 1], cxy[0, 0], 0.0], [0.0, 0.0, NOMINAL_VERTICAL_VAR_M2]])
+        assert np.allclose(cov_of_sphere(e.spheres[0]), want, atol=1e-6 * max(1.0, float(np.abs(want).max())))
+        p = e.spheres[0].pose.position
+        assert [p.x, p.y, p.z] == pytest.approx([f.position_ned_m[1], f.position_ned_m[0], -f.position_ned_m[2]])
+        seen += 1
+    assert seen == len(rd_fixes)

@@ -1,0 +1,191 @@
+"""``fixstream foxglove``: the live bridge over a real Zenoh router (issue 8).
+
+A ``fixstream foxglove`` process (``--port 0``, a scenario with a geodetic origin) bridges a real router; a
+WebSocket client speaking the Foxglove protocol (the ``websockets`` package, subprotocol ``foxglove.sdk.v1``)
+connects, waits for the channels to be advertised, subscribes to the raw channel of a key and to its scene and
+map channels, while this test publishes ``Truth`` and ``Fix`` messages on Zenoh. The client receives them: the
+raw channel carries the message's JSON (equal to what was published), the scene channel a
+``foxglove.SceneUpdate`` decoded with the advertised schema, whose entity sits at the published position with
+the published covariance as its 3σ ellipsoid, the map channel a ``foxglove.LocationFix`` at the right place.
+SIGTERM stops the bridge cleanly (exit 0, a summary of what it served).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import math
+import struct
+import subprocess
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+import zenoh
+from conftest import REPO, fixstream_cmd
+from test_foxglove import cov_of_sphere, haversine, proto_class
+
+from schemas import Fix, Header, Truth
+from shared import codec, keys
+from shared.session import open_session
+from shared.settings import ZenohSettings
+
+pytestmark = pytest.mark.e2e
+
+ORIGIN = {"lat_deg": -33.9, "lon_deg": 151.2, "alt_m": 3.0}
+TRUTH_KEY = keys.truth("auv9")
+FIX_KEY = keys.fix("test", "auv9")
+COV = [[25.0, 6.0, 0.0], [6.0, 9.0, 1.0], [0.0, 1.0, 4.0]]
+
+
+def truth(i: int) -> Truth:
+    return Truth(
+        header=Header(stamp_ns=i * 100_000_000, frame_id="local_enu", source="test/pub", seq=i),
+        platform="auv9",
+        position_m=[100.0 + i, 2000.0 - 3.0 * i, -20.0],
+    )
+
+
+def fix(i: int) -> Fix:
+    return Fix(
+        header=Header(stamp_ns=i * 100_000_000, frame_id="local_enu", source="test/est", seq=i),
+        platform="auv9",
+        estimator="test",
+        status="TRACKING",
+        valid=True,
+        position_m=[101.0 + i, 1998.0 - 3.0 * i, -21.0],
+        position_cov_m2=COV,
+    )
+
+
+class Publisher:
+    """Publishes truth and fixes every 50 ms on the router until stopped; remembers what it sent."""
+
+    def __init__(self, router: str) -> None:
+        self.session = open_session(ZenohSettings(mode="client", connect=[router]))
+        self.sent: dict[str, list[Any]] = {TRUTH_KEY: [], FIX_KEY: []}
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        i = 0
+        while not self.stop.is_set():
+            for key, msg in ((TRUTH_KEY, truth(i)), (FIX_KEY, fix(i))):
+                self.session.put(key, codec.encode(msg), encoding=zenoh.Encoding(codec.encoding_of(type(msg))))
+                self.sent[key].append(msg)
+            i += 1
+            self.stop.wait(0.05)
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(5)
+        self.session.close()
+
+
+async def collect(
+    url: str, wanted: list[str], n_each: int, timeout: float
+) -> tuple[dict[str, Any], dict[str, list[bytes]]]:
+    """Connect, subscribe to the wanted topics once advertised; (advertised channels, payloads per topic)."""
+    import websockets
+
+    channels: dict[str, Any] = {}
+    got: dict[str, list[bytes]] = {t: [] for t in wanted}
+    sub_topic: dict[int, str] = {}
+    deadline = time.monotonic() + timeout
+    async with websockets.connect(url, subprotocols=["foxglove.sdk.v1"]) as ws:  # type: ignore[list-item]
+        first = json.loads(await asyncio.wait_for(ws.recv(), timeout))
+        assert first["op"] == "serverInfo" and first["name"] == "fixstream"
+        while time.monotonic() < deadline and any(len(v) < n_each for v in got.values()):
+            try:
+                frame = await asyncio.wait_for(ws.recv(), max(0.1, deadline - time.monotonic()))
+            except TimeoutError:
+                break
+            if isinstance(frame, str):
+                msg = json.loads(frame)
+                if msg["op"] == "advertise":
+                    subs = []
+                    for ch in msg["channels"]:
+                        channels[ch["topic"]] = ch
+                        if ch["topic"] in wanted:
+                            sid = len(sub_topic) + 1
+                            sub_topic[sid] = ch["topic"]
+                            subs.append({"id": sid, "channelId": ch["id"]})
+                    if subs:
+                        await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+                continue
+            opcode, sid, _ = struct.unpack("<BIQ", frame[:13])
+            if opcode == 1 and sid in sub_topic:
+                got[sub_topic[sid]].append(bytes(frame[13:]))
+    return channels, got
+
+
+def test_client_receives_zenoh_messages_through_the_bridge(router: str, tmp_path: Path) -> None:
+    scenario = yaml.safe_load((REPO / "scenarios" / "demo.yaml").read_text())
+    scenario.update(name="bridge_test", origin=ORIGIN)
+    path = tmp_path / "bridge_test.yaml"
+    path.write_text(yaml.safe_dump(scenario))
+    proc = subprocess.Popen(
+        fixstream_cmd("foxglove", "--port", "0", "--connect", router, "--scenario", str(path)),
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    publisher = None
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        assert line.startswith("foxglove: ws://127.0.0.1:"), (
+            line,
+            proc.stderr.read() if proc.poll() is not None else "",
+        )
+        url = line.split()[1]
+        publisher = Publisher(router)
+        scene, loc = "/foxglove/scene/fix/test/auv9", "/foxglove/location/fix/test/auv9"
+        wanted = [TRUTH_KEY, scene, loc, "/foxglove/scene/truth/auv9"]
+        channels, got = asyncio.run(collect(url, wanted, 5, timeout=30.0))
+    finally:
+        if publisher is not None:
+            publisher.close()
+        proc.terminate()
+        out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err[-3000:]
+    assert "foxglove: served" in out
+    for topic in wanted:
+        assert len(got[topic]) >= 5, (topic, {t: len(v) for t, v in got.items()})
+    # the raw channel: the message's JSON with its JSON Schema, equal to one that was published
+    raw = channels[TRUTH_KEY]
+    assert raw["schemaName"] == "fixstream.Truth" and raw["encoding"] == "json"
+    assert raw["schemaEncoding"] == "jsonschema" and json.loads(raw["schema"])["title"] == "Truth"
+    sent = {m.header.seq: m for m in publisher.sent[TRUTH_KEY]}
+    for payload in got[TRUTH_KEY]:
+        m = Truth.model_validate_json(payload, strict=True)
+        assert m == sent[m.header.seq]
+    # the scene: Foxglove's schema, the published position and covariance
+    ch = channels[scene]
+    assert ch["schemaName"] == "foxglove.SceneUpdate" and ch["encoding"] == "protobuf"
+    update_cls = proto_class("foxglove.SceneUpdate", base64.b64decode(ch["schema"]))
+    fixes = {m.header.stamp_ns: m for m in publisher.sent[FIX_KEY]}
+    for payload in got[scene]:
+        (entity,) = update_cls.FromString(payload).entities
+        stamp = entity.timestamp.seconds * 10**9 + entity.timestamp.nanos
+        f = fixes[stamp]
+        p = entity.spheres[0].pose.position
+        assert [p.x, p.y, p.z] == pytest.approx(f.position_m, abs=1e-9)
+        assert np.allclose(cov_of_sphere(entity.spheres[0]), np.array(COV), atol=1e-9)
+    # the map: the fix at its great-circle distance and bearing from the origin
+    loc_cls = proto_class("foxglove.LocationFix", base64.b64decode(channels[loc]["schema"]))
+    for payload in got[loc]:
+        lf = loc_cls.FromString(payload)
+        f = fixes[lf.timestamp.seconds * 10**9 + lf.timestamp.nanos]
+        d, b = haversine(ORIGIN["lat_deg"], ORIGIN["lon_deg"], lf.latitude, lf.longitude)
+        assert d == pytest.approx(math.hypot(f.position_m[0], f.position_m[1]), rel=5e-3)
+        assert abs(math.remainder(b - math.atan2(f.position_m[0], f.position_m[1]), math.tau)) < 5e-3
+        assert lf.altitude == pytest.approx(ORIGIN["alt_m"] + f.position_m[2])
+        assert list(lf.position_covariance) == pytest.approx([v for row in COV for v in row])
