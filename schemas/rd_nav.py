@@ -137,3 +137,23 @@ class DepartureGrant(Message):
     auv_id: str = Field(min_length=1, max_length=64)
     epoch: int = Field(ge=0, description="assignment epoch in force when granted")
     reason: str = Field(default="", max_length=128)
+
+
+class CoordinatorReply(Message):
+    """The coordinator's answer to one input on its group uplink (closed-loop simulation, ``docs/rd_nav.md``).
+
+    One reply per input, also when the input was refused (``rejected`` names the reason) or decided nothing, so a
+    simulated group waiting for the base station's decisions knows when it has them all. The decisions are the
+    ``BeaconAssignment`` and ``DepartureGrant`` messages the coordinator published for that input, in order.
+    ``header.stamp_ns`` is the input's stamp.
+    """
+
+    group: str = Field(min_length=1, max_length=64)
+    input_key: str = Field(min_length=1, max_length=512, description="key the answered input came on")
+    input_source: str = Field(default="", max_length=256, description="its header.source (e.g. player/default)")
+    input_seq: int = Field(ge=0, description="its header.seq")
+    rejected: str | None = Field(default=None, max_length=64, description="reason, if the input was refused")
+    assignments: list[BeaconAssignment] = Field(default_factory=list, max_length=8)
+    grants: list[DepartureGrant] = Field(default_factory=list, max_length=64)
+    epoch: int = Field(ge=0, description="assignment epoch in force after the input (0: none yet)")
+    config_digest: str = Field(default="", max_length=64, description="digest of the coordinator's configuration")

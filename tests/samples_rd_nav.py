@@ -3,7 +3,15 @@
 from __future__ import annotations
 
 from schemas import Header, Message
-from schemas.rd_nav import BeaconAssignment, DepartureGrant, FollowerObs, RdNavFix, TdoaCycle, VehicleStatus
+from schemas.rd_nav import (
+    BeaconAssignment,
+    CoordinatorReply,
+    DepartureGrant,
+    FollowerObs,
+    RdNavFix,
+    TdoaCycle,
+    VehicleStatus,
+)
 
 H = Header(stamp_ns=1_000_012_345_678_901, frame_id="base_ned", source="rd_nav/auv4", seq=3)
 
@@ -94,4 +102,25 @@ EXAMPLES: dict[str, Message] = {
         reason="gdop",
     ),
     "DepartureGrant": DepartureGrant(header=H, auv_id="auv2", epoch=4, reason="fifo"),
+    "CoordinatorReply": CoordinatorReply(
+        header=H,
+        group="group1",
+        input_key="fixstream/group/group1/uplink/auv3/status",
+        input_source="player/default",
+        input_seq=2,
+        assignments=[
+            BeaconAssignment(
+                header=H,
+                epoch=5,
+                leader_id="auv2",
+                follower_ids=["auv1", "auv4"],
+                tau_s=[0.5, 3.5],
+                cycle_period_s=10.0,
+                reason="gdop",
+            )
+        ],
+        grants=[DepartureGrant(header=H, auv_id="auv3", epoch=5, reason="fifo")],
+        epoch=5,
+        config_digest="e609899306bd56e8",
+    ),
 }

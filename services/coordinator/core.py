@@ -64,15 +64,16 @@ class CoordinatorCore:
                 self.nodes[b.beacon_id] = np.array([b.y_north_m, b.x_east_m, b.depth_m])
             return []
         if isinstance(msg, VehicleStatus):
+            pos = self._check_status(msg)  # refuse before any state change (the clock included)
             t = self._time(msg.header.stamp_ns)
-            changed = self._on_status(msg, t)
+            changed = self._on_status(msg, t, pos)
             return self._after(t, changed)
         if isinstance(msg, AcousticArrival):
-            t = self._time(msg.header.stamp_ns)
             pk = msg.packet
             rec = self.vehicles.get(pk.sender_id)
             if rec is None:
                 raise InputRejected("unknown_sender", f"{pk.sender_id} is not in the registry")
+            t = self._time(msg.header.stamp_ns)
             rec.last_heard_s = t
             a = self.assignment
             if a is not None and pk.assignment_epoch == a.epoch and pk.sender_id == a.leader_id:
@@ -107,11 +108,21 @@ class CoordinatorCore:
                 return self.nodes[k]
         raise InputRejected("unknown_node", f"{auv_id}: node {node_id!r} is not in the node table")
 
-    def _on_status(self, msg: VehicleStatus, t: float) -> bool:
-        rec = self.vehicles.setdefault(msg.auv_id, VehicleRecord(msg.auv_id))
+    def _check_status(self, msg: VehicleStatus) -> F64 | None:
+        """Refusals of a status (raised before any state change); the dock position of DOCKED / AT_BASE."""
         ev = msg.event
         if ev in ("DOCKED", "AT_BASE"):
-            pos = self._node(msg.node_id, msg.auv_id, base=ev == "AT_BASE")
+            return self._node(msg.node_id, msg.auv_id, base=ev == "AT_BASE")
+        if ev == "SERVICE_DONE":
+            rec = self.vehicles.get(msg.auv_id)
+            state = rec.state if rec is not None else "UNKNOWN"
+            if state not in (*DOCKED_STATES, "AT_BASE"):
+                raise InputRejected("not_docked", f"SERVICE_DONE from {msg.auv_id} in state {state}")
+        return None
+
+    def _on_status(self, msg: VehicleStatus, t: float, pos: F64 | None) -> bool:
+        rec = self.vehicles.setdefault(msg.auv_id, VehicleRecord(msg.auv_id))
+        ev = msg.event
         rec.last_heard_s = t
         if ev == "DOCKED":
             rec.state, rec.node_id, rec.position = "DOCKED_SERVICING", msg.node_id, pos
@@ -124,8 +135,6 @@ class CoordinatorCore:
             self._dequeue(msg.auv_id)
             return True
         if ev == "SERVICE_DONE":
-            if rec.state not in (*DOCKED_STATES, "AT_BASE"):
-                raise InputRejected("not_docked", f"SERVICE_DONE from {msg.auv_id} in state {rec.state}")
             if rec.state != "AT_BASE":
                 rec.state = "DOCKED_DONE"
             if all(a != msg.auv_id for _, a in self.done_queue):

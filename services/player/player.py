@@ -5,6 +5,11 @@ The events are exactly :func:`services.player.timeline.iter_events` (stamp order
 (0: as fast as the network takes them). The end marker on ``fixstream/scenario/<name>`` carries the
 number of messages published per key. The player holds the liveliness token
 ``fixstream/alive/player/<instance>`` while it runs.
+
+An interactive simulator (a closed loop with a service, ``docs/scenarios.md``) gets a
+:class:`~services.player.exchange.ZenohExchange`, subscribed to its reply key before the start marker: after
+publishing a chunk of its events the player waits there for the service's answers to the chunk's requests before
+the simulator makes the next chunk. Open-loop simulators are played exactly as before.
 """
 
 from __future__ import annotations
@@ -13,16 +18,18 @@ import contextlib
 import logging
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import zenoh
 
 from shared import keys
 
+from .exchange import ZenohExchange
 from .pacing import Pacer
 from .publish import Publishers
 from .scenario import Scenario
-from .timeline import iter_events, marker
+from .simulators import InteractiveSimulator
+from .timeline import build, marker, player_source, stamp
 
 log = logging.getLogger("fixstream.player")
 
@@ -42,6 +49,8 @@ class PlayResult:
     published: dict[str, int]
     completed: bool
     wall_s: float
+    #: per interactive simulator id: requests, answers, timeouts, missing (empty for open-loop scenarios)
+    exchanges: dict[str, dict[str, int]] = field(default_factory=dict)
 
     @property
     def total(self) -> int:
@@ -108,6 +117,7 @@ def play_scenario(
     scenario_key = keys.scenario(scenario.name)
     token = session.liveliness().declare_token(keys.alive("player", instance))
     pubs = Publishers(session)
+    exchanges: dict[str, ZenohExchange] = {}
     try:
         if wait:
             wait_for_alive(session, scenario.wait_keys(), scenario.wait_timeout_s, stop)
@@ -115,7 +125,13 @@ def play_scenario(
                 log.warning("%s: stopped while waiting for %s", scenario.name, ", ".join(scenario.wait_for))
                 return PlayResult({}, False, 0.0)
         pacer = Pacer(rate, stop)
-        events = iter_events(scenario, seed, run=run, instance=instance)
+        sim = build(scenario, seed, run)
+        source = player_source(instance)
+        for sid, s in sim.simulators:
+            spec = s.exchange_spec() if isinstance(s, InteractiveSimulator) else None
+            if spec is not None:
+                exchanges[sid] = ZenohExchange(session, sid, spec, source, instance, stop)
+        events = stamp(sim.raw_events(dict(exchanges)), source)
         t0 = time.monotonic()
         last_stamp = 0
         pubs.put(scenario_key, marker(scenario, seed, "start", 0, 0, instance))
@@ -137,8 +153,12 @@ def play_scenario(
             len(published),
             wall,
         )
-        return PlayResult(published, completed, wall)
+        for sid, ex in exchanges.items():
+            log.info("%s: exchanges of %s: %s", scenario.name, sid, dict(ex.stats))
+        return PlayResult(published, completed, wall, {sid: dict(ex.stats) for sid, ex in exchanges.items()})
     finally:
+        for ex in exchanges.values():
+            ex.close()
         pubs.close()
         with contextlib.suppress(Exception):
             token.undeclare()

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import heapq
 from collections import Counter
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,7 +23,15 @@ from schemas import Header, ScenarioMarker
 from shared import keys
 
 from .scenario import Scenario
-from .simulators import Event, ScenarioContext, Simulator, child_seed, get_simulator
+from .simulators import (
+    Event,
+    Exchange,
+    InteractiveSimulator,
+    ScenarioContext,
+    Simulator,
+    child_seed,
+    get_simulator,
+)
 
 
 class SimulationError(RuntimeError):
@@ -49,9 +57,16 @@ class Simulation:
     context: ScenarioContext
     simulators: list[tuple[str, Simulator]]
 
-    def raw_events(self) -> Iterator[Event]:
-        """Merged events as the simulators made them (source and seq not yet filled)."""
-        streams = [_checked(sid, sim.events(), self.context.duration_ns) for sid, sim in self.simulators]
+    def raw_events(self, exchanges: Mapping[str, Exchange] | None = None) -> Iterator[Event]:
+        """Merged events as the simulators made them (source and seq not yet filled).
+
+        ``exchanges`` (simulator id -> exchange) drives those interactive simulators through their
+        ``interact(exchange)`` (the player's Zenoh exchange); every other simulator gives ``events()``, which for
+        an interactive one is its in-process closed loop. The merge pulls lazily: an interactive simulator's next
+        chunk is made only after the consumer took the last event of the previous one.
+        """
+        ex = exchanges or {}
+        streams = [_checked(sid, _source(sim, ex.get(sid)), self.context.duration_ns) for sid, sim in self.simulators]
         return heapq.merge(*streams, key=lambda e: e.stamp_ns)
 
 
@@ -70,6 +85,12 @@ def build(scenario: Scenario, seed: int, run: int | None = None) -> Simulation:
         except (ValueError, KeyError, TypeError) as exc:  # e.g. a platform no earlier simulator flies
             raise SimulationError(f"simulator {spec.id!r} ({spec.kind}): {type(exc).__name__}: {exc}") from exc
     return Simulation(scenario, context, built)
+
+
+def _source(sim: Simulator, exchange: Exchange | None) -> Iterator[Event]:
+    if exchange is not None and isinstance(sim, InteractiveSimulator):
+        return sim.interact(exchange)
+    return sim.events()
 
 
 def _checked(sim_id: str, events: Iterable[Event], duration_ns: int) -> Iterator[Event]:

@@ -1,6 +1,8 @@
-"""AUV-group navigation with docked AUVs as range-difference LBL beacons (digest 002): the pure core.
+"""AUV-group navigation with docked AUVs as range-difference LBL beacons (digest 002).
 
 ``core.RdNavCore`` (one per moving AUV) turns acoustic arrivals and DR sensors into ``RdNavFix`` and
-``TdoaCycle`` messages; ``simulation`` and ``inprocess`` reproduce the digest's REF/LOW experiments;
-``metrics`` computes their statistics. The coordinator core is in ``services.coordinator``.
+``TdoaCycle`` messages; ``service`` is its Zenoh adapter (``fixstream run rd_nav``); ``simulation`` and
+``inprocess`` reproduce the digest's REF/LOW experiments; ``simulator`` is the player plugin ``rd_group`` (the
+group in a closed loop with the coordinator); ``metrics`` and ``mc`` compute their statistics. The coordinator
+(core, protocol, service, mc plugin) is in ``services.coordinator``. See ``docs/rd_nav.md``.
 """

@@ -74,7 +74,7 @@ class ScenarioConfig(BaseModel):
 
     name: str = "REF-inside"
     duration_s: float = Field(default=14_400.0, gt=0.0)
-    start_stamp_ns: int = Field(default=1_000_000_000_000, ge=10**9, description="data-clock stamp of t = 0")
+    start_stamp_ns: int = Field(default=1_000_000_000_000, ge=0, description="data-clock stamp of t = 0")
     nodes: dict[str, tuple[float, float, float]] = Field(default_factory=lambda: dict(REF_NODES))
     vehicles: list[VehicleSpec] = Field(
         default_factory=lambda: [
@@ -123,6 +123,13 @@ class ScenarioConfig(BaseModel):
     depth_period_s: float = Field(default=10.0, gt=0.0)
     depth_sigma_m: float = Field(default=0.0, ge=0.0)
     truth_period_s: float = Field(default=0.0, ge=0.0, description="Truth messages (0: none)")
+    truth_at_leader_arrivals: bool = Field(
+        default=False, description="also a Truth of a moving AUV at the stamp of each leader packet it receives"
+    )
+    truth_axes: Literal["ned", "enu"] = Field(
+        default="ned", description="Truth positions [north, east, depth] (ned) or [east, north, up] (enu)"
+    )
+    truth_frame_id: str = Field(default="base_ned", description="header.frame_id of the Truth messages")
     # fleet behaviour
     undock_delay_s: float = Field(default=20.0, ge=0.0)
     heartbeat_period_s: float = Field(default=0.0, ge=0.0, description="HEARTBEAT statuses (0: none)")
@@ -632,17 +639,35 @@ class Simulation:
 
     def _truth(self) -> None:
         for v in self.vehicles.values():
-            x, y = self.truth_xy(v.auv_id, self.now)
-            z = v.depth_m if v.state == "TRANSIT" else float(self.true_nodes[v.node_id or ""][2])
-            heading = v.path.state(self.now)[2] if v.path is not None and v.state == "TRANSIT" else 0.0
-            msg = Truth(
-                header=self._header(self.now, "base_ned"),
-                platform=v.auv_id,
-                position_m=[x, y, z],
-                attitude_rad=[math.atan2(math.sin(heading), math.cos(heading)), 0.0, 0.0],
-            )
-            self._emit(self.now, v.auv_id, "truth", msg)
+            self._emit(self.now, v.auv_id, "truth", self._truth_msg(v, self.now))
         self._at(self.now + self.cfg.truth_period_s, self._truth)
+
+    def _truth_msg(self, v: _Vehicle, t: float) -> Truth:
+        """The true state of one vehicle at time t: position, velocity, heading (``truth_axes`` convention)."""
+        moving = v.state == "TRANSIT" and v.path is not None
+        if moving:
+            assert v.path is not None
+            x, y, heading, speed = v.path.state(t)
+            z = v.depth_m
+        else:
+            x, y = self.truth_xy(v.auv_id, t)
+            z = float(self.true_nodes[v.node_id or ""][2])
+            heading, speed = 0.0, 0.0
+        vx, vy = speed * math.cos(heading), speed * math.sin(heading)
+        if self.cfg.truth_axes == "enu":
+            pos, vel = [y, x, -z], [vy, vx, 0.0]
+            att = [heading % (2.0 * math.pi), 0.0, 0.0]
+        else:
+            pos, vel = [x, y, z], [vx, vy, 0.0]
+            att = [math.atan2(math.sin(heading), math.cos(heading)), 0.0, 0.0]
+        return Truth(
+            header=self._header(t, self.cfg.truth_frame_id),
+            platform=v.auv_id,
+            position_m=pos,
+            velocity_mps=vel,
+            attitude_rad=att,
+            extra={"depth_m": z, "moving": 1.0 if moving else 0.0},
+        )
 
     # ----- acoustic channel ------------------------------------------------------------------
     def _clock(self, v: _Vehicle, t: float) -> float:
@@ -728,10 +753,13 @@ class Simulation:
                 t += float(self.rng_loss.uniform(*cfg.multipath_delay_s))
             theta = self._clock(v, t) + cfg.sigma_t_s * self.nrm_ac()
             stamp_t = t + (float(self.rng_ac.uniform(-1.0, 1.0)) * cfg.stamp_jitter_s if cfg.stamp_jitter_s else 0.0)
+            stamp_t = max(stamp_t, 0.0)  # a data-clock stamp is never before the start
             msg = AcousticArrival(
                 header=self._header(stamp_t, v.auv_id), receiver_id=v.auv_id, t_rx_local_s=theta, packet=pk
             )
             self._emit(stamp_t, v.auv_id, "acoustic", msg)
+            if cfg.truth_at_leader_arrivals and pk.kind == "LEADER":
+                self._emit(stamp_t, v.auv_id, "truth", self._truth_msg(v, stamp_t))
         if cfg.base_listener:
             b = np.asarray(cfg.base_position_ned_m)
             t = t_tx + float(np.linalg.norm(b - src)) / c

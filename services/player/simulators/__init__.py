@@ -3,6 +3,9 @@
 from .base import (
     NS_PER_S,
     Event,
+    Exchange,
+    ExchangeSpec,
+    InteractiveSimulator,
     ScenarioContext,
     SimParams,
     Simulator,
@@ -10,6 +13,7 @@ from .base import (
     TruthState,
     child_rng,
     child_seed,
+    is_interactive,
     sample_stamps_ns,
 )
 from .registry import PLUGIN_MODULES, UnknownSimulator, get_simulator, known_kinds, register
@@ -18,6 +22,9 @@ __all__ = [
     "NS_PER_S",
     "PLUGIN_MODULES",
     "Event",
+    "Exchange",
+    "ExchangeSpec",
+    "InteractiveSimulator",
     "ScenarioContext",
     "SimParams",
     "Simulator",
@@ -27,6 +34,7 @@ __all__ = [
     "child_rng",
     "child_seed",
     "get_simulator",
+    "is_interactive",
     "known_kinds",
     "register",
     "sample_stamps_ns",

@@ -5,12 +5,21 @@ the :class:`ScenarioContext`, and then yields :class:`Event` tuples ``(stamp_ns,
 non-decreasing ``stamp_ns`` order, all within ``[0, context.duration_ns]``. Stamps are on the simulated
 clock (ns since scenario start). The player fills ``header.source`` and ``header.seq``; a simulator sets
 ``header.stamp_ns`` (equal to the event stamp) and ``header.frame_id`` (``context.frame_id``).
+
+**Interactive simulators** (closed loop, ``docs/scenarios.md``): a simulator that must react to a service's
+answers (a group of AUVs obeying the base coordinator's beacon assignments) also implements
+:class:`InteractiveSimulator`. Its :meth:`~InteractiveSimulator.interact` generator yields events chunk by chunk
+and, after the last event of a chunk that holds *requests* (events a service answers), calls ``exchange(requests)``
+and feeds the answers back before it makes the next chunk. The player passes an exchange that waits for the
+answers on Zenoh (:mod:`services.player.exchange`); ``events()`` passes the simulator's own in-process one
+(``fixstream mc``, ``scenario_events``). Same generator, two drivers: the event stream is identical when the
+service answers as the in-process twin does.
 """
 
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, NamedTuple, Protocol, runtime_checkable
 
@@ -93,6 +102,46 @@ class Simulator(Protocol):
     def events(self) -> Iterator[Event]:
         """Events in non-decreasing stamp order, each within ``[0, context.duration_ns]``."""
         ...
+
+
+#: the player side of a closed loop: given the requests of a chunk (events already published, in order), the
+#: answers to them (the reply messages, in request order; a request whose answer did not come in time has none)
+Exchange = Callable[[list[Event]], list[Message]]
+
+
+@dataclass(frozen=True)
+class ExchangeSpec:
+    """Where an interactive simulator's answers come from and how to tell which request one answers."""
+
+    #: key expression the answering service publishes its replies on
+    reply_key: str
+    #: (request header.source, request key, request header.seq) that a reply answers, or None if not a reply
+    answers: Callable[[Message], tuple[str, str, int] | None]
+    #: wall time to wait for the answers to one chunk's requests, s (then the run proceeds without them)
+    timeout_s: float = 10.0
+
+
+@runtime_checkable
+class InteractiveSimulator(Protocol):
+    """A simulator in a closed loop with a service (see the module docstring). ``events()`` must equal
+    ``interact(<its in-process exchange>)``."""
+
+    Params: ClassVar[type[SimParams]]
+
+    def events(self) -> Iterator[Event]: ...
+
+    def exchange_spec(self) -> ExchangeSpec | None:
+        """How the answers come (None: this run asks nothing, e.g. an open-loop configuration)."""
+        ...
+
+    def interact(self, exchange: Exchange) -> Iterator[Event]:
+        """Events as ``events()``, asking ``exchange`` for the answers to each chunk's requests."""
+        ...
+
+
+def is_interactive(sim: object) -> bool:
+    """True if ``sim`` implements :class:`InteractiveSimulator` and this run exchanges with a service."""
+    return isinstance(sim, InteractiveSimulator) and sim.exchange_spec() is not None
 
 
 def stable_id(name: str) -> int:
