@@ -68,7 +68,11 @@ def test_up_records_the_demo_scenario(tmp_path: Path) -> None:
     assert counts["fixstream/track/pcl/rx1/tx-fm-98.1"] == counts["fixstream/sensor/rx1/pcl/tx-fm-98.1"]
     published = re.search(r"published (\d+) messages", out)
     assert published is not None, out
-    streams = sum(n for k, n in counts.items() if k.startswith(("fixstream/truth/", "fixstream/sensor/")))
+    # the player publishes sensors, truth and the group's uplink requests to the coordinator (the closed loop)
+    player_keys = ("fixstream/truth/", "fixstream/sensor/")
+    streams = sum(
+        n for k, n in counts.items() if k.startswith(player_keys) or k.startswith("fixstream/group/group1/uplink/")
+    )
     # the demo publishes a few deliberately invalid samples (NaN) that the recorder refuses and reports:
     # everything the player published was either recorded or refused with a diagnostic, nothing lost
     # (each refusal also shows as a seq gap of the player's stream, reported as seq_gap)

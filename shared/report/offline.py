@@ -163,9 +163,7 @@ def rd_items(seed: int = 1, duration_s: float = 300.0, offset_s: float = 0.0) ->
     items: list[Item] = []
     for auv, a in log.auv.items():
         items += _stamp([(keys.fix("rd", auv), f) for f in a.pf_fixes], f"rd_nav/{auv}")
-    items += _stamp(
-        [(f"{keys.ROOT}/group/group1/{type(m).__name__.lower()}", m) for m in log.coordinator_out], "coordinator/group1"
-    )
+    items += _stamp([(_coordinator_key("group1", m), m) for m in log.coordinator_out], "coordinator/group1")
     # truth at every cycle fix (the run scores its fixes against it: rows t, x, y, qxx, qxy, qyy, true x, true y)
     truths: list[Item] = []
     for auv, a in log.auv.items():
@@ -234,3 +232,11 @@ __all__ = [
     "service_outputs",
     "write_recording",
 ]
+
+
+def _coordinator_key(group: str, msg: Message) -> str:
+    """Where the coordinator service publishes ``msg`` (services/coordinator/service.py)."""
+    from schemas.rd_nav import DepartureGrant
+    from services.coordinator.service import assignment_key, grant_key
+
+    return grant_key(group, msg.auv_id) if isinstance(msg, DepartureGrant) else assignment_key(group)
