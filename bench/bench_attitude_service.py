@@ -18,10 +18,7 @@ plots/s) using under 10 % of one core, i.e. a steady-state CPU cost under 500 µ
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -31,11 +28,10 @@ from schemas.attitude import AttitudeEstimate
 from services.attitude.service import AttitudeService, AttitudeSettings
 from services.player.scenario import load_scenario
 from services.player.timeline import scenario_events
-from shared.session import open_session
-from shared.settings import ZenohSettings
 
 from .report import emit
-from .stack import REPO, router
+from .service_harness import client_env, play_timed, start_service, stop
+from .stack import router
 
 SCAN_S = 5.0
 WARM_SCANS = 4
@@ -43,7 +39,6 @@ WARM_SCANS = 4
 #: "psd_check" re-runs the schema's covariance check before publishing (FIXSTREAM_ATTITUDE_VALIDATE_COVARIANCES)
 CASES = (("default", 1, 600), ("default", 100, 40), ("default", 1000, 12), ("psd_check", 1000, 12))
 SETTINGS: dict[str, dict[str, str]] = {"default": {}, "psd_check": {"validate_covariances": "true"}}
-_TICK = os.sysconf("SC_CLK_TCK")
 #: repetitions per case (fresh service each); the table shows the one with the lowest service CPU per plot
 REPEATS = 2
 
@@ -74,12 +69,6 @@ def scenario_doc(n_targets: int, n_scans: int) -> dict[str, object]:
     }
 
 
-def cpu_s(pid: int) -> float:
-    """User + system CPU time of a process (all its threads), s."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / _TICK
-
-
 def offline_cost(path: Path, n_targets: int, settings: dict[str, str]) -> tuple[float, int, int]:
     """The service's offline path (decode, core, encode) on the scenario's plots: CPU s per plot after the warm-up
     scans, and the numbers of estimates the warm-up part and the whole scenario give (a gated plot gives none)."""
@@ -104,55 +93,23 @@ def run_case(endpoint: str, tmp: Path, config: str, n_targets: int, n_scans: int
     path.write_text(yaml.safe_dump(scenario_doc(n_targets, n_scans)))
     settings = SETTINGS[config]
     offline_s, warm, total = offline_cost(path, n_targets, settings)  # the same plots give the same estimates online
-    env = dict(os.environ, FIXSTREAM_ZENOH_MODE="client", FIXSTREAM_ZENOH_CONNECT=endpoint)
-    cmd = [sys.executable, "-m", "shared.cli.main", "--log-level", "WARNING"]
-    svc_env = dict(env, FIXSTREAM_ATTITUDE_INSTANCE="bench", FIXSTREAM_ATTITUDE_SITE_ID="r1")
+    svc_env = {"FIXSTREAM_ATTITUDE_INSTANCE": "bench", "FIXSTREAM_ATTITUDE_SITE_ID": "r1"}
     svc_env.update({f"FIXSTREAM_ATTITUDE_{k.upper()}": v for k, v in settings.items()})
-    service = subprocess.Popen([*cmd, "run", "attitude"], env=svc_env, cwd=REPO)
-    session = open_session(ZenohSettings(mode="client", connect=[endpoint]))
-    count = 0
-    marks: dict[str, tuple[float, float]] = {}
-    done = threading.Event()
-    lock = threading.Lock()
-
-    def on_estimate(_sample: object) -> None:
-        nonlocal count
-        with lock:
-            count += 1
-            n = count
-        if n == warm:
-            marks["warm"] = (time.perf_counter(), cpu_s(service.pid))
-        if n == total:
-            marks["end"] = (time.perf_counter(), cpu_s(service.pid))
-            done.set()
-
-    sub = session.declare_subscriber("fixstream/fix/attitude/r1/*", on_estimate)
+    service = start_service("attitude", client_env(endpoint, svc_env))
     try:
-        t0 = time.perf_counter()
-        play = subprocess.run(
-            [*cmd, "play", str(path), "--rate", "0"], env=env, cwd=REPO, capture_output=True, text=True
-        )
-        t_played = time.perf_counter() - t0
-        if play.returncode != 0:
-            raise RuntimeError(f"player failed: {play.stderr[-2000:]}")
-        if not done.wait(timeout=180):
-            raise RuntimeError(f"only {count} of {total} estimates arrived")
+        w = play_timed(endpoint, path, "fixstream/fix/attitude/r1/*", service.pid, warm, total, timeout_s=180)
     finally:
-        sub.undeclare()
-        session.close()
-        service.terminate()
-        service.wait(timeout=30)
-    (tw, cw), (te, ce) = marks["warm"], marks["end"]
+        stop(service)
     timed = n_targets * (n_scans - WARM_SCANS)  # plots after the warm-up scans (gated ones cost CPU too)
-    cpu_per_plot = (ce - cw) / timed
+    cpu_per_plot = w.cpu_s / timed
     return {
         "targets": n_targets,
         "plots": n_targets * n_scans,
         "timed_plots": timed,
         "service_cpu_us_per_plot": round(cpu_per_plot * 1e6, 1),
         "plots_per_s_cpu": round(1.0 / cpu_per_plot, 1),
-        "plots_per_s_wall": round(timed / (te - tw), 1),
-        "player_wall_s": round(t_played, 2),
+        "plots_per_s_wall": round(timed / w.wall_s, 1),
+        "player_wall_s": round(w.player_wall_s, 2),
         "core_share_at_5s_scan": round(n_targets / SCAN_S * cpu_per_plot, 5),
         "offline_cpu_us_per_plot": round(offline_s * 1e6, 1),
     }

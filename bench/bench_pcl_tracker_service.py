@@ -22,10 +22,6 @@ processed (initiation included).
 from __future__ import annotations
 
 import json
-import os
-import re
-import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -37,12 +33,13 @@ import zenoh
 
 from schemas.pcl_tracker import PclScanReport
 from services.pcl_tracker.service import output_key
-from shared import codec, keys
+from shared import codec
 from shared.session import open_session
 from shared.settings import ZenohSettings
 
 from .report import emit
-from .stack import REPO, router
+from .service_harness import client_env, play, service_status, start_service, stop
+from .stack import router
 
 PAPER = {"receiver_id": "rx1", "illuminator_id": "tx-fm-98.1", "tx_position_enu_m": [8000, 0, 300]}
 DVBT = {"receiver_id": "rx1", "illuminator_id": "tx-dvbt-530", "tx_position_enu_m": [-12000, 15000, 400]}
@@ -128,13 +125,6 @@ CASES: list[tuple[str, str, dict[str, Any], dict[str, str]]] = [
 ]
 
 
-def _status(session: zenoh.Session, instance: str) -> dict[str, Any]:
-    for reply in session.get(keys.status("pcl_tracker", instance), timeout=5.0):
-        if reply.ok is not None:
-            return json.loads(reply.ok.payload.to_bytes())  # type: ignore[no-any-return]
-    return {}
-
-
 def run_case(
     endpoint: str, workdir: Path, instance: str, spec: dict[str, Any], env_extra: dict[str, str]
 ) -> dict[str, Any]:
@@ -142,20 +132,15 @@ def run_case(
     n_scans = round(spec["duration_s"] / 3.0) + 1
     path = workdir / f"{instance}.yaml"
     path.write_text(yaml.safe_dump(spec))
-    base_env = {k: v for k, v in os.environ.items() if not k.startswith("FIXSTREAM_")}
-    base_env.update(
-        {"FIXSTREAM_ZENOH_MODE": "client", "FIXSTREAM_ZENOH_CONNECT": endpoint, "FIXSTREAM_LOG_LEVEL": "WARNING"}
-    )
-    env = dict(base_env)
-    env.update(
-        {
-            "FIXSTREAM_PCL_TRACKER_INSTANCE": instance,
-            "FIXSTREAM_PCL_TRACKER_RECEIVER_ID": pair["receiver_id"],
-            "FIXSTREAM_PCL_TRACKER_ILLUMINATOR_ID": pair["illuminator_id"],
-            "FIXSTREAM_PCL_TRACKER_TX_POSITION_ENU_M": json.dumps(pair["tx_position_enu_m"]),
-        }
-    )
-    env.update({f"FIXSTREAM_PCL_TRACKER_{k}": v for k, v in env_extra.items()})
+    base_env = client_env(endpoint, clean=True)
+    settings = {
+        "FIXSTREAM_PCL_TRACKER_INSTANCE": instance,
+        "FIXSTREAM_PCL_TRACKER_RECEIVER_ID": pair["receiver_id"],
+        "FIXSTREAM_PCL_TRACKER_ILLUMINATOR_ID": pair["illuminator_id"],
+        "FIXSTREAM_PCL_TRACKER_TX_POSITION_ENU_M": json.dumps(pair["tx_position_enu_m"]),
+        **{f"FIXSTREAM_PCL_TRACKER_{k}": v for k, v in env_extra.items()},
+    }
+    env = client_env(endpoint, settings, clean=True)
     session = open_session(ZenohSettings(mode="client", connect=[endpoint]))
     arrivals: list[tuple[float, int]] = []
     payloads: list[bytes] = []
@@ -168,23 +153,10 @@ def run_case(
             payloads.append(payload)
 
     sub = session.declare_subscriber(output_key(pair["receiver_id"], pair["illuminator_id"]), on_report)
-    tracker = subprocess.Popen(
-        [sys.executable, "-m", "shared.cli.main", "run", "pcl_tracker"], env=env, cwd=REPO, stderr=subprocess.DEVNULL
-    )
+    tracker = start_service("pcl_tracker", env, quiet=True)
     try:
         t0 = time.perf_counter()
-        played = subprocess.run(
-            [sys.executable, "-m", "shared.cli.main", "play", str(path), "--rate", "0"],
-            env=base_env,
-            cwd=REPO,
-            capture_output=True,
-            text=True,
-            timeout=600,
-        )
-        if played.returncode != 0:
-            raise RuntimeError(f"player failed: {played.stderr[-2000:]}")
-        m = re.search(r"published (\d+) messages on \d+ keys in ([0-9.]+) s", played.stdout + played.stderr)
-        player_s = float(m.group(2)) if m else float("nan")
+        player_s = play(path, base_env).player_s
         player_done = time.perf_counter()
         deadline = time.monotonic() + 600
         while time.monotonic() < deadline:
@@ -192,10 +164,9 @@ def run_case(
                 if len(arrivals) >= n_scans:
                     break
             time.sleep(0.05)
-        status = _status(session, instance)
+        status = service_status(session, "pcl_tracker", instance)
     finally:
-        tracker.terminate()
-        tracker.wait(timeout=30)
+        stop(tracker)
         sub.undeclare()
         session.close()
     with lock:

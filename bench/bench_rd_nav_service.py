@@ -20,10 +20,7 @@ the load average is printed with the figures). The same messages through the ser
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -34,13 +31,13 @@ from services.player.timeline import scenario_events
 from services.rd_nav.service import RdNavService, RdNavSettings, cycle_key
 
 from .report import emit
-from .stack import REPO, router
+from .service_harness import client_env, play_timed, start_service, stop
+from .stack import router
 
 DURATION_S = 7200.0
 CYCLE_S = 10.0
 WARM = 20
 REPEATS = 2
-_TICK = os.sysconf("SC_CLK_TCK")
 
 
 def scenario_doc(closed_loop: bool) -> dict[str, object]:
@@ -63,12 +60,6 @@ def scenario_doc(closed_loop: bool) -> dict[str, object]:
     }
 
 
-def cpu_s(pid: int) -> float:
-    """User + system CPU time of a process (all its threads), s."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / _TICK
-
-
 def offline_cost(path: Path) -> tuple[float, int, int]:
     """The service's offline path on the vehicle's messages: CPU s per cycle, cycles, messages."""
     events = scenario_events(load_scenario(path))
@@ -88,65 +79,26 @@ def run_case(endpoint: str, tmp: Path, closed_loop: bool) -> dict[str, float]:
     path = tmp / f"bench_{closed_loop}.yaml"
     path.write_text(yaml.safe_dump(scenario_doc(closed_loop)))
     offline_s, total, n_msgs = offline_cost(path)
-    env = dict(os.environ, FIXSTREAM_ZENOH_MODE="client", FIXSTREAM_ZENOH_CONNECT=endpoint)
-    cmd = [sys.executable, "-m", "shared.cli.main", "--log-level", "WARNING"]
-    service = subprocess.Popen([*cmd, "run", "rd_nav"], env=dict(env, FIXSTREAM_RD_NAV_INSTANCE="auv4"), cwd=REPO)
+    service = start_service("rd_nav", client_env(endpoint, {"FIXSTREAM_RD_NAV_INSTANCE": "auv4"}))
     coordinator = None
     if closed_loop:
-        coordinator = subprocess.Popen(
-            [*cmd, "run", "coordinator"], env=dict(env, FIXSTREAM_COORDINATOR_INSTANCE="group1"), cwd=REPO
-        )
-    from shared.session import open_session
-    from shared.settings import ZenohSettings
-
-    session = open_session(ZenohSettings(mode="client", connect=[endpoint]))
-    count = 0
-    marks: dict[str, tuple[float, float]] = {}
-    done = threading.Event()
-    lock = threading.Lock()
-
-    def on_cycle(_sample: object) -> None:
-        nonlocal count
-        with lock:
-            count += 1
-            n = count
-        if n == WARM:
-            marks["warm"] = (time.perf_counter(), cpu_s(service.pid))
-        if n == total:
-            marks["end"] = (time.perf_counter(), cpu_s(service.pid))
-            done.set()
-
-    sub = session.declare_subscriber(cycle_key("auv4"), on_cycle)
+        coordinator = start_service("coordinator", client_env(endpoint, {"FIXSTREAM_COORDINATOR_INSTANCE": "group1"}))
     try:
-        t0 = time.perf_counter()
-        play = subprocess.run(
-            [*cmd, "play", str(path), "--rate", "0"], env=env, cwd=REPO, capture_output=True, text=True
-        )
-        t_played = time.perf_counter() - t0
-        if play.returncode != 0:
-            raise RuntimeError(f"player failed: {play.stderr[-2000:]}")
-        if not done.wait(timeout=300):
-            raise RuntimeError(f"only {count} of {total} cycles arrived")
+        w = play_timed(endpoint, path, cycle_key("auv4"), service.pid, WARM, total, timeout_s=300)
     finally:
-        sub.undeclare()
-        session.close()
-        for proc in (service, coordinator):
-            if proc is not None:
-                proc.terminate()
-                proc.wait(timeout=30)
-    (tw, cw), (te, ce) = marks["warm"], marks["end"]
+        stop(service, coordinator)
     timed = total - WARM
-    cpu = (ce - cw) / timed
+    cpu = w.cpu_s / timed
     return {
         "cycles": total,
         "messages_to_service": n_msgs,
         "timed_cycles": timed,
         "service_cpu_ms_per_cycle": round(cpu * 1e3, 3),
         "cycles_per_s_cpu": round(1.0 / cpu, 1),
-        "cycles_per_s_wall": round(timed / (te - tw), 1),
-        "player_wall_s": round(t_played, 2),
+        "cycles_per_s_wall": round(timed / w.wall_s, 1),
+        "player_wall_s": round(w.player_wall_s, 2),
         "offline_cpu_ms_per_cycle": round(offline_s * 1e3, 3),
-        "realtime_factor": round(timed / (te - tw) * CYCLE_S, 1),
+        "realtime_factor": round(timed / w.wall_s * CYCLE_S, 1),
     }
 
 

@@ -14,11 +14,8 @@ throughput / 40 msg/s: how many aircraft one process keeps up with in real time.
 
 from __future__ import annotations
 
-import json
 import os
-import re
 import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -43,7 +40,8 @@ from shared.session import open_session
 from shared.settings import ZenohSettings
 
 from .report import emit
-from .stack import REPO, router
+from .service_harness import client_env, play, service_status, start_service, stop
+from .stack import router
 
 MAP_CELLS = int(os.environ.get("BENCH_TERRAIN_MAP_CELLS", "800"))
 VEHICLE, INSTANCE = "tan1", "bench"
@@ -99,25 +97,13 @@ def _in_process(path: Path, repeat: int = 3) -> dict[str, float]:
 
 
 def _start_service(endpoint: str, path: Path) -> tuple[subprocess.Popen[bytes], dict[str, str]]:
-    env = dict(os.environ)
-    env.update(
-        {
-            "FIXSTREAM_ZENOH_MODE": "client",
-            "FIXSTREAM_ZENOH_CONNECT": endpoint,
-            "FIXSTREAM_TERRAIN_NAV_INSTANCE": INSTANCE,
-            "FIXSTREAM_TERRAIN_NAV_VEHICLE": VEHICLE,
-            "FIXSTREAM_TERRAIN_NAV_MAP_PATH": str(path.parent / "bench_map.npy"),
-            "FIXSTREAM_LOG_LEVEL": "WARNING",
-        }
-    )
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "shared.cli.main", "run", "terrain_nav"],
-        env=env,
-        cwd=REPO,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    return proc, env
+    settings = {
+        "FIXSTREAM_TERRAIN_NAV_INSTANCE": INSTANCE,
+        "FIXSTREAM_TERRAIN_NAV_VEHICLE": VEHICLE,
+        "FIXSTREAM_TERRAIN_NAV_MAP_PATH": str(path.parent / "bench_map.npy"),
+    }
+    env = client_env(endpoint, settings)
+    return start_service("terrain_nav", env, quiet=True), env
 
 
 def _over_zenoh(path: Path, publisher: str) -> dict[str, float]:
@@ -141,33 +127,16 @@ def _over_zenoh(path: Path, publisher: str) -> dict[str, float]:
             session.declare_subscriber(f"{keys.fix('terrain', VEHICLE)}/verdict", on_verdict),
             session.declare_subscriber("fixstream/scenario/**", on_marker),
         ]
-        player_s = float("nan")
         try:
-            if publisher == "player":
-                play = subprocess.run(
-                    [sys.executable, "-m", "shared.cli.main", "play", str(path), "--rate", "0"],
-                    env=env,
-                    cwd=REPO,
-                    capture_output=True,
-                    text=True,
-                    timeout=600,
-                )
-                if play.returncode != 0:
-                    raise RuntimeError(play.stderr[-2000:])
-                found = re.search(r"published \d+ messages on \d+ keys in ([0-9.]+) s", play.stdout + play.stderr)
-                player_s = float(found.group(1)) if found else player_s
-            else:
-                player_s = _put_raw(session, path)
+            player_s = play(path, env).player_s if publisher == "player" else _put_raw(session, path)
             if not done.wait(600):
                 raise RuntimeError("the service never finished the scenario")
-            replies = list(session.get(keys.status("terrain_nav", INSTANCE), timeout=5.0))
-            status = json.loads(replies[0].ok.payload.to_bytes()) if replies and replies[0].ok else {}
+            status = service_status(session, "terrain_nav", INSTANCE)
         finally:
             for s in subs:
                 s.undeclare()
             session.close()
-            svc.terminate()
-            svc.wait(timeout=30)
+            stop(svc)
         counters = status.get("counters", {})
         wall = marks["end"] - marks["start"]
         n = float(counters.get("received", 0)) - 2.0  # the start and end markers

@@ -15,6 +15,7 @@ import subprocess
 import threading
 from collections import Counter, defaultdict
 from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -22,7 +23,7 @@ import pytest
 import zenoh
 from conftest import REPO, fixstream_cmd, service_env, wait_until
 
-from schemas import Message
+from schemas import Diagnostic, Message, ScenarioMarker
 from services.player.scenario import Scenario
 from services.player.timeline import marker, scenario_events
 from shared import codec, keys
@@ -35,6 +36,8 @@ from shared.stack import load_compose
 COMPOSE = REPO / "compose.yaml"
 
 Feed = list[tuple[str, Message]]
+#: a sample as it travels: (key, payload, encoding)
+Raw = tuple[str, bytes, str]
 S = TypeVar("S", bound=Service)
 
 
@@ -64,6 +67,38 @@ def delivered(svc: Service, feed: Iterable[tuple[str, Message]]) -> Feed:
 
 def on_key(outputs: Sequence[Output], key: str) -> list[Message]:
     return [o.msg for o in outputs if o.key == key]
+
+
+def without_source_seq(msgs: Iterable[Message]) -> list[Message]:
+    """The messages with the header's seq and source blanked (what a core in-process does not set)."""
+    return [m.model_copy(update={"header": m.header.model_copy(update={"seq": 0, "source": ""})}) for m in msgs]
+
+
+def counters_add_up(svc: Service) -> None:
+    c = svc.counters
+    assert c.received == c.accepted + c.rejected
+    assert c.rejected == sum(c.rejected_by_reason.values())
+
+
+def raw(key: str, msg: Message) -> Raw:
+    """The message as the player puts it on the wire."""
+    return key, codec.encode(msg), codec.encoding_of(type(msg))
+
+
+def with_end_marker(scenario: Scenario, items: list[Raw], last_stamp_ns: int) -> list[Raw]:
+    """The items and, last, the player's end marker counting them per key (bad items included)."""
+    published = Counter(key for key, _, _ in items)
+    end = marker(scenario, scenario.seed, "end", last_stamp_ns, 1, published=dict(published))
+    return [*items, (keys.scenario(scenario.name), codec.encode(end), codec.encoding_of(ScenarioMarker))]
+
+
+def offline_on_bytes(twin: Service, items: Iterable[Raw]) -> list[Output]:
+    """The service fed exactly these bytes, as the Zenoh callback path feeds them; returns what it published."""
+    twin.run_offline([])  # declares the subscriptions
+    start = len(twin.outbox)
+    for key, payload, encoding in items:
+        twin.process(key, payload, encoding, rx_time_ns=0)
+    return twin.outbox[start:]
 
 
 def stack_env(scenario: Path) -> dict[str, str]:
@@ -212,3 +247,46 @@ def live_service(
         code = live.close()
     assert code == 0, live.output[-3000:]
     assert "internal_error" not in live.output and "Traceback" not in live.output, live.output[-3000:]
+
+
+@dataclass
+class LiveRun:
+    """What a live service published for a bad-input run, and its status once the run had ended."""
+
+    status: dict[str, Any]
+    received: dict[str, list[Message]]
+    diags: list[Diagnostic]
+
+
+def live_run_equals_offline(
+    router: str,
+    name: str,
+    instance: str,
+    listen: Sequence[str],
+    items: Sequence[Raw],
+    offline: Sequence[Output],
+    expected: Counter[str],
+    **env: str,
+) -> LiveRun:
+    """``items`` on the wire to ``fixstream run <name>`` (see :func:`live_service`): it publishes on every key as
+    many messages as its offline twin (``offline``, on the same bytes), stays alive, ends the run (two sessions),
+    and its counters add up to exactly the ``expected`` refusals; once it is stopped, its outputs equal the twin's
+    message for message and its diagnostics give the twin's reasons."""
+    n_out = Counter(o.key for o in offline)
+    with live_service(router, name, instance, listen, **env) as live:
+        live.put_raw(items)
+        assert wait_until(lambda: all(live.count(k) == n for k, n in n_out.items()), timeout=60), {
+            k: (live.count(k), n) for k, n in n_out.items()
+        }
+        assert live.proc.poll() is None and live.alive(1.0)  # still alive, and its status adds up
+        status = live.wait_status(lambda st: st["sessions"] == 2, timeout_s=20)
+        c = status["counters"]
+        assert c["received"] == len(items) == c["accepted"] + c["rejected"]
+        assert c["rejected_by_reason"] == dict(expected) and c["rejected"] == sum(expected.values())
+    received = live.received
+    for k in n_out:
+        assert received[k] == on_key(offline, k), k
+    diags = [d for d in received[live.diag_key] if isinstance(d, Diagnostic)]
+    off_diags = [m for m in (o.msg for o in offline) if isinstance(m, Diagnostic)]
+    assert Counter(d.reason for d in diags) == Counter(d.reason for d in off_diags)
+    return LiveRun(status, received, diags)

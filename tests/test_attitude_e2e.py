@@ -18,11 +18,23 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
-from conftest import REPO, wait_until
-from stack_support import as_composed, live_service, player_waited_for, recorded_by_topic, run_up
+from conftest import REPO
+from stack_support import (
+    as_composed,
+    live_run_equals_offline,
+    offline_on_bytes,
+    on_key,
+    player_waited_for,
+    raw,
+    recorded_by_topic,
+    run_up,
+    with_end_marker,
+    without_source_seq,
+)
 from test_attitude_service import (
     DIAG_KEY,
     RADAR_KEY,
+    SLOW_TARGET,
     all_events,
     assert_estimate_sane,
     build_scenario,
@@ -31,24 +43,21 @@ from test_attitude_service import (
     inputs_of,
     los_errors,
     make_service,
-    on_key,
     plot_of,
-    raw,
     truths_of,
-    without_source_seq,
 )
 
-from schemas import Diagnostic, RadarPlot, ScenarioMarker, Truth
+from schemas import Diagnostic, RadarPlot, Truth
 from schemas.attitude import AttitudeEstimate
 from services.attitude import service as attitude_service
 from services.player.scenario import load_scenario
-from services.player.timeline import marker
-from shared import codec, keys
+from shared import codec
 
 pytestmark = pytest.mark.e2e
 
 SERVICE = "attitude-r1"
 SCENARIO = REPO / "scenarios" / "attitude_9s15.yaml"
+SITE_ENV = {"FIXSTREAM_ATTITUDE_SITE_ID": "r1"}
 
 
 def test_stack_gives_the_offline_and_in_process_estimates(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -86,27 +95,14 @@ def test_stack_gives_the_offline_and_in_process_estimates(tmp_path: Path, monkey
 
 
 def test_bad_input_over_a_real_router(router: str) -> None:
-    slow = {
-        "id": "slow",
-        "start": {
-            "range_m": 15000.0,
-            "azimuth_deg": 40.0,
-            "altitude_m": 1500.0,
-            "heading_deg": 100.0,
-            "speed_mps": 150.0,
-        },
-        "segments": [{"duration_s": 150.0}, {"duration_s": 147.0, "accel_mps2": -1.0}],
-        "phase_s": 3.0,
-    }
     targets = [
         {"id": "a", "plan": "paper", "missed_scans": [30, 31, 50, 51, 52, 53]},  # a short gap, then a long one
         {"id": "b", "plan": "paper", "phase_s": 1.5},  # its id changes at t = 200 s
-        slow,  # near-zero speed from t = 290 s
+        {**SLOW_TARGET, "phase_s": 3.0},  # near-zero speed from t = 290 s
     ]
     sc = build_scenario(targets, duration_s=400.0)
     twin = make_service(instance="bad1", site_id="r1")
     feed = inputs_of(twin, all_events(sc))
-    diag_key = keys.diag("attitude", "bad1")
     a20 = plot_of(feed, "a", 20)
     items: list[tuple[str, bytes, str]] = []
     expected: Counter[str] = Counter()
@@ -133,15 +129,10 @@ def test_bad_input_over_a_real_router(router: str) -> None:
             expected["invalid_target_id"] += 1
             items.append(raw(key, msg.model_copy(update={"header": later, "range_m": msg.range_m + 8000.0})))
             expected["innovation_gate"] += 1
-    published = Counter(key for key, _, _ in items)  # as the player's end marker counts them
-    end = marker(sc, sc.seed, "end", feed[-1][1].header.stamp_ns, 1, published=dict(published))
-    items.append((keys.scenario(sc.name), codec.encode(end), codec.encoding_of(ScenarioMarker)))
+    items = with_end_marker(sc, items, feed[-1][1].header.stamp_ns)  # counting them as the player's does
 
     # the offline twin on exactly these bytes
-    twin.run_offline([])
-    for key, payload, encoding in items:
-        twin.process(key, payload, encoding, rx_time_ns=0)
-    offline = twin.outbox
+    offline = offline_on_bytes(twin, items)
     off_diags = [o.msg for o in offline if isinstance(o.msg, Diagnostic)]
     off_reasons = Counter(d.reason for d in off_diags)
     assert twin.counters.rejected_by_reason == expected
@@ -156,29 +147,14 @@ def test_bad_input_over_a_real_router(router: str) -> None:
     }
     assert twin.sessions == 2  # the end marker started a fresh core
 
-    n_out = {k: sum(o.key == k for o in offline) for k in {o.key for o in offline}}
-    with live_service(
-        router, "attitude", "bad1", ["fixstream/fix/attitude/r1/*"], FIXSTREAM_ATTITUDE_SITE_ID="r1"
-    ) as live:
-        live.put_raw(items)
-        assert wait_until(lambda: all(live.count(k) == n for k, n in n_out.items()), timeout=60), {
-            k: (live.count(k), n) for k, n in n_out.items()
-        }
-        assert live.proc.poll() is None and live.alive(1.0)  # still alive, and its status adds up
-        status = live.wait_status(lambda st: st["sessions"] == 2, timeout_s=20)
-        c = status["counters"]
-        assert c["received"] == len(items) == c["accepted"] + c["rejected"]
-        assert c["rejected_by_reason"] == dict(expected) and c["rejected"] == sum(expected.values())
-        assert status["events"] == dict(Counter(d.reason for d in off_diags if d.reason not in expected))
-        assert status["site_id"] == "r1" and status["targets"] == 0 and not status["scenario"]["end_pending"]
-    received = live.received
-
-    # the same outputs as the offline twin, message for message, and every case named with its key
-    for k in n_out:
-        assert received[k] == on_key(offline, k), k
-    diags = [d for d in received[diag_key] if isinstance(d, Diagnostic)]
-    assert Counter(d.reason for d in diags) == off_reasons
-    assert all(d.key == RADAR_KEY for d in diags)
+    # on the wire: the same outputs as the offline twin, message for message, its status adding up
+    listen = ["fixstream/fix/attitude/r1/*"]
+    run = live_run_equals_offline(router, "attitude", "bad1", listen, items, offline, expected, **SITE_ENV)
+    status, received = run.status, run.received
+    assert status["events"] == dict(Counter(d.reason for d in off_diags if d.reason not in expected))
+    assert status["site_id"] == "r1" and status["targets"] == 0 and not status["scenario"]["end_pending"]
+    # every case named with its key
+    assert all(d.key == RADAR_KEY for d in run.diags)
     # good plots after the bad ones still give sane estimates; the gated outlier did not move the state
     a_fixes = [m for m in received["fixstream/fix/attitude/r1/a"] if isinstance(m, AttitudeEstimate)]
     after = next(f for f in a_fixes if f.header.stamp_ns == round(100e9))  # the plot after the bad ones

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import zenoh
 from pydantic import ValidationError
-from stack_support import framed
+from stack_support import counters_add_up, framed, offline_on_bytes, on_key, raw, without_source_seq
 
 from schemas import Diagnostic, Message, RadarPlot, ScenarioMarker, Truth
 from schemas.attitude import AttitudeEstimate
@@ -33,6 +33,12 @@ SITE = "r1"
 DIAG_KEY = keys.diag("attitude", SITE)
 RADAR_KEY = "fixstream/sensor/r1/radar/plots"
 Feed = list[tuple[str, Message]]
+#: a target slowing from 150 m/s to 3 m/s (below v_min) after 150 s
+SLOW_TARGET: dict[str, Any] = {
+    "id": "slow",
+    "start": {"range_m": 15000.0, "azimuth_deg": 40.0, "altitude_m": 1500.0, "heading_deg": 100.0, "speed_mps": 150.0},
+    "segments": [{"duration_s": 150.0}, {"duration_s": 147.0, "accel_mps2": -1.0}],
+}
 
 
 # ----------------------------------------------------------------------------------------------- helpers
@@ -67,10 +73,6 @@ def all_events(scenario: Scenario, seed: int | None = None, run: int | None = No
     return [(ev.key, ev.msg) for ev in scenario_events(scenario, seed, run=run)]
 
 
-def on_key(outputs: Sequence[Output], key: str) -> list[Message]:
-    return [o.msg for o in outputs if o.key == key]
-
-
 def estimates(outputs: Sequence[Output], target: str | None = None) -> list[AttitudeEstimate]:
     return [
         o.msg for o in outputs if isinstance(o.msg, AttitudeEstimate) and (target is None or o.msg.target_id == target)
@@ -91,29 +93,6 @@ def core_outputs(feed: Feed, config: AttitudeConfig | None = None) -> list[Attit
         with contextlib.suppress(InputRejected):
             out.extend(core.step(msg))  # type: ignore[arg-type]
     return out
-
-
-def without_source_seq(msgs: Iterable[Message]) -> list[Message]:
-    return [m.model_copy(update={"header": m.header.model_copy(update={"seq": 0, "source": ""})}) for m in msgs]
-
-
-def raw(key: str, msg: Message) -> tuple[str, bytes, str]:
-    return key, codec.encode(msg), codec.encoding_of(type(msg))
-
-
-def feed_bytes(svc: AttitudeService, items: Iterable[tuple[str, bytes, str]]) -> list[Output]:
-    """Process raw samples exactly as the Zenoh callback path does; returns what was published."""
-    svc.run_offline([])  # declares the subscriptions
-    start = len(svc.outbox)
-    for key, payload, encoding in items:
-        svc.process(key, payload, encoding, rx_time_ns=0)
-    return svc.outbox[start:]
-
-
-def counters_add_up(svc: AttitudeService) -> None:
-    c = svc.counters
-    assert c.received == c.accepted + c.rejected
-    assert c.rejected == sum(c.rejected_by_reason.values())
 
 
 def assert_estimate_sane(est: AttitudeEstimate) -> None:
@@ -268,7 +247,7 @@ def _clean_and_bad(
     for i, (key, msg) in enumerate(feed):
         items.append(raw(key, msg))
         items.extend(insert.get(i, []))
-    bad = feed_bytes(svc, items)
+    bad = offline_on_bytes(svc, items)
     return clean, bad, svc, feed
 
 
@@ -409,18 +388,7 @@ def test_near_zero_speed_gives_undefined_angles_not_jumping_ones() -> None:
     """A target slowing from 150 m/s to 3 m/s: the heading sigma widens as the speed falls, every defined angle
     stays within 4 sigma of the truth, and below v_min the heading, roll, LOS and aspect angles are null
     (HEADING_UNDEFINED), reported once as heading_undefined."""
-    slow = {
-        "id": "slow",
-        "start": {
-            "range_m": 15000.0,
-            "azimuth_deg": 40.0,
-            "altitude_m": 1500.0,
-            "heading_deg": 100.0,
-            "speed_mps": 150.0,
-        },
-        "segments": [{"duration_s": 150.0}, {"duration_s": 147.0, "accel_mps2": -1.0}],
-    }
-    scenario = build_scenario([slow], duration_s=450.0)
+    scenario = build_scenario([SLOW_TARGET], duration_s=450.0)
     svc = make_service()
     out = svc.run_offline(inputs_of(svc, all_events(scenario)))
     truth = truths_of(all_events(scenario), "slow")

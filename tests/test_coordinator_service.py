@@ -11,8 +11,8 @@ import os
 from collections import Counter
 
 import pytest
-from stack_support import delivered, framed, on_key
-from test_rd_nav_service import demo, raw
+from stack_support import delivered, framed, offline_on_bytes, on_key, raw
+from test_rd_nav_service import demo
 
 from schemas import AcousticArrival, BeaconTable, Diagnostic, Header, Message, Truth
 from schemas.acoustic import Beacon
@@ -138,9 +138,7 @@ def test_refused_inputs_get_a_reply_and_are_reported() -> None:
         raw(st, _status(3.0, "auv2", "DOCKED", "n2", seq=3)),
         raw(st, _status(4.0, "auv3", "DOCKED", "n3", seq=4)),
     ]
-    svc.run_offline([])
-    for key, payload, encoding in items:
-        svc.process(key, payload, encoding, rx_time_ns=0)
+    offline_on_bytes(svc, items)
     expected = Counter(
         {
             "unknown_node": 1,
@@ -176,9 +174,7 @@ def test_alarms_are_reported_as_events() -> None:
     for k, (auv, node) in enumerate((("auv1", "n1"), ("auv2", "n2"), ("auv3", "n3"))):
         items.append(raw(st, _status(float(k), auv, "DOCKED", node, seq=k)))
     items.append(raw(st, _status(100.0, "auv1", "HEARTBEAT", "n1", seq=3)))  # 100 s without hearing the others
-    svc.run_offline([])
-    for key, payload, encoding in items:
-        svc.process(key, payload, encoding, rx_time_ns=0)
+    offline_on_bytes(svc, items)
     diags = [o.msg for o in svc.outbox if isinstance(o.msg, Diagnostic)]
     assert {d.reason for d in diags} >= {"beacon_timeout"}
     assert all(d.level in ("warning", "error") for d in diags)

@@ -19,8 +19,21 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
-from conftest import REPO, wait_until
-from stack_support import as_composed, delivered, framed, live_service, player_waited_for, recorded_by_topic, run_up
+from conftest import REPO
+from stack_support import (
+    as_composed,
+    delivered,
+    framed,
+    live_run_equals_offline,
+    offline_on_bytes,
+    on_key,
+    player_waited_for,
+    raw,
+    recorded_by_topic,
+    run_up,
+    with_end_marker,
+    without_source_seq,
+)
 from test_lbl_nav_service import (
     EVENT,
     FIX,
@@ -34,20 +47,17 @@ from test_lbl_nav_service import (
     diags,
     error_sigmas,
     make_service,
-    on_key,
-    raw,
     scenario,
     truths,
-    without_source_seq,
 )
 
-from schemas import BeaconRange, Diagnostic, ScenarioMarker, SpeedLog, Truth
+from schemas import BeaconRange, Diagnostic, SpeedLog, Truth
 from schemas.lbl_nav import LblEvent, LblFix
 from services.lbl_nav import mc
 from services.lbl_nav import service as lbl_service
 from services.player.scenario import load_scenario
 from services.player.simulators import Event
-from services.player.timeline import marker, scenario_events
+from services.player.timeline import scenario_events
 from shared import codec, keys
 
 pytestmark = pytest.mark.e2e
@@ -106,7 +116,6 @@ def test_bad_input_over_a_real_router(router: str) -> None:
     sc = scenario(duration_s=170.0, dropouts=[{"stream": "log", "start_s": 130.0, "duration_s": 30.0}])
     twin = make_service(instance="bad1", vehicle="lbl1")
     feed = delivered(twin, all_events(sc))
-    diag_key = keys.diag("lbl_nav", "bad1")
     i_pre, i_post, i_gate = at(feed, 60.0), at(feed, 115.0), at(feed, 120.0)
     pre = next(m for _, m in feed[i_pre:] if isinstance(m, BeaconRange))
     rng = next(m for _, m in feed[i_post:] if isinstance(m, BeaconRange))
@@ -136,42 +145,24 @@ def test_bad_input_over_a_real_router(router: str) -> None:
             items.append(raw(key, Truth(header=t_next, platform="lbl1", position_m=[0.0, 0.0, 0.0])))  # ignored
             expected.update(("out_of_bounds", "impossible_range", "unknown_beacon", "stamp_backwards", "late"))
             expected.update(("wrong_type", "bad_msgpack"))
-    published = Counter(key for key, _, _ in items)  # as the player's end marker counts them
-    end = marker(sc, sc.seed, "end", feed[-1][1].header.stamp_ns, 1, published=dict(published))
-    items.append((keys.scenario(sc.name), codec.encode(end), codec.encoding_of(ScenarioMarker)))
+    items = with_end_marker(sc, items, feed[-1][1].header.stamp_ns)  # counting them as the player's does
 
     # the offline twin on exactly these bytes
-    twin.run_offline([])
-    for key, payload, encoding in items:
-        twin.process(key, payload, encoding, rx_time_ns=0)
-    offline = twin.outbox
+    offline = offline_on_bytes(twin, items)
     off_diags = [o.msg for o in offline if isinstance(o.msg, Diagnostic)]
     assert twin.counters.rejected_by_reason == expected
     events = Counter(d.reason for d in off_diags if d.reason not in expected)
     assert events == {"innovation_gate": 1, "dr_gap": 1, "dr_restored": 1}
     assert twin.sessions == 2 and twin.status()["events"]["ignored"] == 1
 
-    n_out = {k: sum(o.key == k for o in offline) for k in {o.key for o in offline}}
-    with live_service(router, "lbl_nav", "bad1", [FIX, EVENT], FIXSTREAM_LBL_NAV_VEHICLE="lbl1") as live:
-        live.put_raw(items)
-        assert wait_until(lambda: all(live.count(k) == n for k, n in n_out.items()), timeout=60), {
-            k: (live.count(k), n) for k, n in n_out.items()
-        }
-        assert live.proc.poll() is None and live.alive(1.0)  # still alive, and its status adds up
-        status = live.wait_status(lambda st: st["sessions"] == 2, timeout_s=20)
-        c = status["counters"]
-        assert c["received"] == len(items) == c["accepted"] + c["rejected"]
-        assert c["rejected_by_reason"] == dict(expected) and c["rejected"] == sum(expected.values())
-        assert status["events"] == {**events, "launch": 1, "decision": 1, "ignored": 1}
-        assert status["vehicle"] == "lbl1" and status["state"] == "WAITING" and not status["scenario"]["end_pending"]
-    received = live.received
-
-    # the same outputs as the offline twin, message for message, and every case named with its key
-    for k in n_out:
-        assert received[k] == [o.msg for o in offline if o.key == k], k
-    diags_online = [d for d in received[diag_key] if isinstance(d, Diagnostic)]
-    assert Counter(d.reason for d in diags_online) == Counter(d.reason for d in off_diags)
-    assert all(d.key in (RANGE_KEY, LOG_KEY, SENSOR["Heading"], SENSOR["Depth"]) for d in diags_online)
+    # on the wire: the same outputs as the offline twin, message for message, its status adding up
+    env = {"FIXSTREAM_LBL_NAV_VEHICLE": "lbl1"}
+    run = live_run_equals_offline(router, "lbl_nav", "bad1", [FIX, EVENT], items, offline, expected, **env)
+    status, received = run.status, run.received
+    assert status["events"] == {**events, "launch": 1, "decision": 1, "ignored": 1}
+    assert status["vehicle"] == "lbl1" and status["state"] == "WAITING" and not status["scenario"]["end_pending"]
+    # every case named with its key
+    assert all(d.key in (RANGE_KEY, LOG_KEY, SENSOR["Heading"], SENSOR["Depth"]) for d in run.diags)
     # the estimate: covariances SPD at every epoch, errors within their sigmas, the log gap flagged
     truth = truths(sc)
     fixes = [m for m in received[FIX] if isinstance(m, LblFix)]

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 from pydantic import ValidationError
-from stack_support import delivered, framed
+from stack_support import Raw, counters_add_up, delivered, framed, offline_on_bytes, on_key, raw, without_source_seq
 
 from schemas import BeaconRange, BeaconTable, Depth, Diagnostic, Message, ScenarioMarker, SpeedLog, Truth
 from schemas.lbl_nav import LblEvent, LblFix
@@ -38,7 +38,6 @@ DIAG = keys.diag("lbl_nav", VEHICLE)
 SENSOR = sensor_keys(VEHICLE)
 RANGE_KEY, LOG_KEY = SENSOR["BeaconRange"], SENSOR["SpeedLog"]
 Feed = list[tuple[str, Message]]
-Raw = tuple[str, bytes, str]
 
 
 # ----------------------------------------------------------------------------------------------- helpers
@@ -71,10 +70,6 @@ def inputs(sc: Scenario) -> Feed:
     return delivered(make_service(), all_events(sc))
 
 
-def on_key(outputs: Sequence[Output], key: str) -> list[Message]:
-    return [o.msg for o in outputs if o.key == key]
-
-
 def fixes(outputs: Sequence[Output]) -> list[LblFix]:
     return [o.msg for o in outputs if o.key == FIX and isinstance(o.msg, LblFix)]
 
@@ -95,34 +90,15 @@ def core_outputs(feed: Feed, config: LblNavConfig | None = None) -> list[Message
     return out + core.flush()
 
 
-def without_source_seq(msgs: Iterable[Message]) -> list[Message]:
-    return [m.model_copy(update={"header": m.header.model_copy(update={"seq": 0, "source": ""})}) for m in msgs]
-
-
 def stamped(msg: Message, stamp_ns: int, **update: Any) -> Message:
     """A copy of ``msg`` with another stamp (and fields)."""
     return msg.model_copy(update={"header": msg.header.model_copy(update={"stamp_ns": stamp_ns}), **update})
 
 
-def raw(key: str, msg: Message) -> Raw:
-    return key, codec.encode(msg), codec.encoding_of(type(msg))
-
-
 def feed_bytes(svc: LblNavService, items: Iterable[Raw]) -> list[Output]:
     """Process raw samples exactly as the Zenoh callback path does; returns what was published (an end marker
     still waiting for announced samples that never came is forced at the end, as ``end_wait_s`` would)."""
-    svc.run_offline([])  # declares the subscriptions
-    start = len(svc.outbox)
-    for key, payload, encoding in items:
-        svc.process(key, payload, encoding, rx_time_ns=0)
-    svc.run_offline([])
-    return svc.outbox[start:]
-
-
-def counters_add_up(svc: LblNavService) -> None:
-    c = svc.counters
-    assert c.received == c.accepted + c.rejected
-    assert c.rejected == sum(c.rejected_by_reason.values())
+    return offline_on_bytes(svc, items) + svc.run_offline([])
 
 
 def assert_fix_sane(f: LblFix) -> None:

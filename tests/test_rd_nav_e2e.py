@@ -16,20 +16,20 @@
 from __future__ import annotations
 
 import json
-from collections import Counter
 from pathlib import Path
 
 import pytest
-from conftest import REPO, wait_until
+from conftest import REPO
 from stack_support import (
     as_composed,
     delivered,
     framed,
-    live_service,
+    live_run_equals_offline,
     on_key,
     player_waited_for,
     recorded_by_topic,
     run_up,
+    without_source_seq,
 )
 from test_rd_nav_service import (
     AUV,
@@ -42,10 +42,9 @@ from test_rd_nav_service import (
     offline_twin,
     truth_ne,
     vehicle_feed,
-    without_source_seq,
 )
 
-from schemas import Diagnostic, Message
+from schemas import Message
 from schemas.rd_nav import BeaconAssignment, CoordinatorReply, DepartureGrant, RdNavFix
 from services.coordinator import mc as coordinator_mc
 from services.coordinator import service as coordinator_service
@@ -144,33 +143,12 @@ def test_bad_input_over_a_real_router(router: str) -> None:
     items, expected, step_at = bad_items(vehicle_feed(svc))
     twin = offline_twin(items)
     check_bad_input_run(twin, expected, step_at)
-    offline = twin.outbox
-    n_out = Counter(o.key for o in offline)
-    diag_key = keys.diag("rd_nav", "bad1")
-    with live_service(
-        router,
-        "rd_nav",
-        "bad1",
-        [f"fixstream/fix/rd/{AUV}/**"],  # the fixes and, below them, the EKF's and the cycles
-        FIXSTREAM_RD_NAV_AUV_ID=AUV,
-        FIXSTREAM_RD_NAV_FLEET_IDS=json.dumps(FLEET),
-    ) as live:
-        live.put_raw(items)
-        assert wait_until(lambda: all(live.count(k) == n for k, n in n_out.items()), timeout=60), {
-            k: (live.count(k), n) for k, n in n_out.items()
-        }
-        assert live.proc.poll() is None and live.alive(1.0)  # still alive, and its status adds up
-        status = live.wait_status(lambda st: st["sessions"] == 2, timeout_s=20)
-        c = status["counters"]
-        assert c["received"] == len(items) == c["accepted"] + c["rejected"]
-        assert c["rejected_by_reason"] == dict(expected) and c["rejected"] == sum(expected.values())
-        assert status["events"] == dict(twin.events) and status["auv_id"] == AUV
-        assert not status["scenario"]["end_pending"] and status["scenario"]["ends"] == {"complete": 1}
-    received = live.received
-    for k in n_out:
-        assert received[k] == on_key(offline, k), k
-    diags = [d for d in received[diag_key] if isinstance(d, Diagnostic)]
-    assert Counter(d.reason for d in diags) == Counter(o.msg.reason for o in offline if isinstance(o.msg, Diagnostic))  # type: ignore[attr-defined]
+    env = {"FIXSTREAM_RD_NAV_AUV_ID": AUV, "FIXSTREAM_RD_NAV_FLEET_IDS": json.dumps(FLEET)}
+    listen = [f"fixstream/fix/rd/{AUV}/**"]  # the fixes and, below them, the EKF's and the cycles
+    run = live_run_equals_offline(router, "rd_nav", "bad1", listen, items, twin.outbox, expected, **env)
+    status, received, diags = run.status, run.received, run.diags
+    assert status["events"] == dict(twin.events) and status["auv_id"] == AUV
+    assert not status["scenario"]["end_pending"] and status["scenario"]["ends"] == {"complete": 1}
     assert all(d.key.startswith(f"fixstream/sensor/{AUV}/") for d in diags)
     fixes = [m for m in received[fix_key(AUV)] if isinstance(m, RdNavFix)]
     assert fixes and all(f.auv_id == AUV for f in fixes)

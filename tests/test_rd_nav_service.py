@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import pytest
 from conftest import REPO
-from stack_support import delivered, framed, on_key
+from stack_support import Raw, delivered, framed, offline_on_bytes, on_key, raw, without_source_seq
 
 from schemas import (
     AcousticArrival,
@@ -59,8 +59,6 @@ SVS = keys.sensor(AUV, "sound_speed", "svs0")
 DIAG = keys.diag("rd_nav", "bad1")
 FLEET = ["auv1", "auv2", "auv3", "auv4", "auv5"]
 
-Item = tuple[str, bytes, str]
-
 
 @cache
 def demo() -> tuple[Scenario, tuple[Event, ...]]:
@@ -75,14 +73,6 @@ def make_service(instance: str = AUV, **settings: Any) -> RdNavService:
 def vehicle_feed(svc: RdNavService) -> list[tuple[str, Message]]:
     scenario, events = demo()
     return delivered(svc, framed(scenario, [(e.key, e.msg) for e in events]))
-
-
-def raw(key: str, msg: Message) -> Item:
-    return key, codec.encode(msg), codec.encoding_of(type(msg))
-
-
-def without_source_seq(msgs: list[Message]) -> list[Message]:
-    return [m.model_copy(update={"header": m.header.model_copy(update={"source": "", "seq": 0})}) for m in msgs]
 
 
 def truth_ne(events: tuple[Event, ...] | list[Event], auv: str) -> dict[int, tuple[float, float]]:
@@ -178,7 +168,7 @@ def _with_packet(a: AcousticArrival, **update: Any) -> AcousticArrival:
     return a.model_copy(update={"packet": a.packet.model_copy(update=update)})
 
 
-def bad_items(feed: list[tuple[str, Message]]) -> tuple[list[Item], Counter[str], int]:
+def bad_items(feed: list[tuple[str, Message]]) -> tuple[list[Raw], Counter[str], int]:
     """The vehicle's feed with every bad case inserted after 45 s (the filter tracking), the expected refusals, and
     the stamp of the receiver clock step (+0.5 s from there on, inside a cycle)."""
     expected: Counter[str] = Counter()
@@ -192,7 +182,7 @@ def bad_items(feed: list[tuple[str, Message]]) -> tuple[list[Item], Counter[str]
     step_at = stepped.header.stamp_ns + 300_000_000  # 0.3 s after a later leader: before its replies
     replies = [a for _, a in arrivals if a.packet.kind == "FOLLOWER" and a.packet.cycle_seq == stepped.packet.cycle_seq]
     expected["stale_packet"] += len(replies) - 1  # the first reply shows the step and closes the cycle; the rest
-    items: list[Item] = []
+    items: list[Raw] = []
     assert isinstance(feed[-1][1], ScenarioMarker) and feed[-1][1].event == "end"
     for i, (key, msg) in enumerate(feed[:-1]):  # the end marker is rebuilt below
         if key == MODEM and msg.header.stamp_ns > step_at:
@@ -247,11 +237,9 @@ def bad_items(feed: list[tuple[str, Message]]) -> tuple[list[Item], Counter[str]
     return items, expected, step_at
 
 
-def offline_twin(items: list[Item], instance: str = "bad1") -> RdNavService:
+def offline_twin(items: list[Raw], instance: str = "bad1") -> RdNavService:
     twin = make_service(instance, auv_id=AUV, fleet_ids=FLEET)
-    twin.run_offline([])
-    for key, payload, encoding in items:
-        twin.process(key, payload, encoding, rx_time_ns=0)
+    offline_on_bytes(twin, items)
     return twin
 
 

@@ -16,7 +16,18 @@ from pathlib import Path
 
 import pytest
 from conftest import REPO, wait_until
-from stack_support import as_composed, live_service, player_waited_for, recorded_by_topic, run_up
+from stack_support import (
+    as_composed,
+    framed,
+    live_service,
+    offline_on_bytes,
+    on_key,
+    player_waited_for,
+    raw,
+    recorded_by_topic,
+    run_up,
+    with_end_marker,
+)
 from test_terrain_nav_service import (
     FIX_KEY,
     INS_KEY,
@@ -25,19 +36,17 @@ from test_terrain_nav_service import (
     VERDICT_KEY,
     assert_fix_sane,
     core_outputs,
-    framed,
     inputs_of,
-    on_key,
     scenario_feed,
     terrain_scenario,
     truth_of,
     without_seq,
 )
 
-from schemas import Diagnostic, InsSample, Message, RadioAltimeter, ScenarioMarker
+from schemas import Diagnostic, InsSample, RadioAltimeter
 from schemas.terrain_nav import TerrainFix, TerrainVerdict
 from services.player.scenario import load_scenario
-from services.player.timeline import marker, scenario_events
+from services.player.timeline import scenario_events
 from services.terrain_nav import service as terrain_service
 from services.terrain_nav.service import TerrainNavService, TerrainNavSettings
 from shared import codec, keys
@@ -74,10 +83,6 @@ def test_stack_gives_the_offline_and_in_process_fixes(tmp_path: Path, monkeypatc
         assert_fix_sane(f, truth)
 
 
-def _raw(key: str, msg: Message) -> tuple[str, bytes, str]:
-    return key, codec.encode(msg), codec.encoding_of(type(msg))
-
-
 def test_bad_input_over_a_real_router(router: str) -> None:
     sc = terrain_scenario("informative")
     events = [(ev.key, ev.msg) for ev in scenario_events(sc) if ev.stamp_ns <= 40 * 10**9]
@@ -93,40 +98,35 @@ def test_bad_input_over_a_real_router(router: str) -> None:
         if key == INS_KEY and t == 38.0e9:
             assert isinstance(msg, InsSample)
             msg = msg.model_copy(update={"x_m": 1.0e7})  # a position far outside the map
-        items.append(_raw(key, msg))
+        items.append(raw(key, msg))
         if k == 301:
             items.append((RA_KEY, b"\xc1", codec.encoding_of(RadioAltimeter)))  # not msgpack
             expected["bad_msgpack"] += 1
         elif k == 401:
             header = msg.header.model_copy(update={"stamp_ns": t + 10**7})
             nan = RadioAltimeter.model_construct(header=header, h_agl_m=math.nan, valid=True)
-            items.append(_raw(RA_KEY, nan))  # NaN height
+            items.append(raw(RA_KEY, nan))  # NaN height
             expected["non_finite"] += 1
         elif k == 501:
             flag = RadioAltimeter(
                 header=msg.header.model_copy(update={"stamp_ns": t + 10**7}), h_agl_m=500.0, valid=False
             )
-            items.append(_raw(RA_KEY, flag))  # the data-valid flag is false
+            items.append(raw(RA_KEY, flag))  # the data-valid flag is false
             expected["ra_invalid"] += 1
         elif k == 601:
             back = RadioAltimeter(header=msg.header.model_copy(update={"stamp_ns": t - 10**9}), h_agl_m=500.0)
-            items.append(_raw(RA_KEY, back))  # the stamp goes backwards
+            items.append(raw(RA_KEY, back))  # the stamp goes backwards
             expected["stamp_backwards"] += 1
         elif k == 701:
-            items.append(_raw(RA_KEY, feed[k - 1][1]))  # an INS sample on the radio-altimeter key
+            items.append(raw(RA_KEY, feed[k - 1][1]))  # an INS sample on the radio-altimeter key
             expected["unexpected_type"] += 1
         elif k == 801:
             items.append((RA_KEY, codec.encode(msg), "application/msgpack;fixstream.RadioAltimeter/99"))
             expected["schema_version"] += 1
-    published = Counter(key for key, _, _ in items)  # as the player's end marker counts them
-    end = marker(sc, sc.seed, "end", events[-1][1].header.stamp_ns, 1, published=dict(published))
-    items.append((keys.scenario(sc.name), codec.encode(end), codec.encoding_of(ScenarioMarker)))
+    items = with_end_marker(sc, items, events[-1][1].header.stamp_ns)  # counting them as the player's does
 
     # the offline twin on exactly these bytes
-    twin.run_offline([])
-    for key, payload, encoding in items:
-        twin.process(key, payload, encoding, rx_time_ns=0)
-    offline = twin.outbox
+    offline = offline_on_bytes(twin, items)
     off_reasons = Counter(o.msg.reason for o in offline if isinstance(o.msg, Diagnostic))
     # the INS gap: one ins_gap report, RA samples that cannot be synchronised; the far position: out_of_zone
     assert off_reasons["ins_gap"] == 1 and off_reasons["unsynchronised"] >= 5 and off_reasons["out_of_zone"] == 1

@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 import yaml
 import zenoh
-from stack_support import framed
+from stack_support import counters_add_up as stack_counters_add_up
+from stack_support import framed, on_key
 
 from schemas import Depth, Diagnostic, Header, InsSample, Message, NavReset, RadioAltimeter, Truth
 from schemas.terrain_nav import TerrainFix, TerrainVerdict
@@ -73,10 +74,6 @@ def scenario_feed(svc: TerrainNavService, scenario: Scenario, seed: int | None =
     return inputs_of(svc, [(ev.key, ev.msg) for ev in scenario_events(scenario, seed)])
 
 
-def on_key(outputs: Sequence[Output], key: str) -> list[Message]:
-    return [o.msg for o in outputs if o.key == key]
-
-
 def diags(outputs: Sequence[Output], instance: str = VEHICLE) -> list[Diagnostic]:
     return [o.msg for o in outputs if o.key == keys.diag("terrain_nav", instance) and isinstance(o.msg, Diagnostic)]
 
@@ -107,9 +104,7 @@ def assert_fix_sane(fix: TerrainFix, truth: TruthTrack, max_cells: float = 1.0) 
 
 
 def counters_add_up(svc: TerrainNavService) -> None:
-    c = svc.counters
-    assert c.received == c.accepted + c.rejected
-    assert c.rejected == sum(c.rejected_by_reason.values())
+    stack_counters_add_up(svc)
     assert svc.status()["pending"] == len(svc.buffer)
 
 

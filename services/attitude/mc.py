@@ -27,7 +27,7 @@ import math
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from schemas import RadarPlot, Truth
 from schemas.attitude import AttitudeEstimate
@@ -35,6 +35,7 @@ from services.player.scenario import Scenario
 from services.player.simulators import Event
 from shared import keys
 from shared.errors import InputRejected
+from shared.mc_params import check_config_overrides
 
 from .config import AttitudeConfig
 from .core import AttitudeCore
@@ -70,13 +71,7 @@ class Params(BaseModel):
     def _check(self) -> Params:
         if self.site_id is not None:
             keys.chunk(self.site_id)
-        if "site_id" in self.config:
-            raise ValueError("config.site_id: give the site as params.site_id")
-        try:
-            self.core_config("check")
-        except ValidationError as exc:
-            first = exc.errors()[0]
-            raise ValueError(f"config.{'.'.join(str(p) for p in first['loc'])}: {first['msg']}") from None
+        check_config_overrides(self.config, "site_id", "the site as params.site_id", lambda: self.core_config("check"))
         if any(s < 1 for s in self.summary_scans) or not 1 <= self.consistency_scans[0] <= self.consistency_scans[1]:
             raise ValueError("scan numbers start at 1; consistency_scans is [first, last]")
         return self

@@ -34,14 +34,15 @@ from collections import Counter
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from schemas import Truth
 from schemas.lbl_nav import LblEvent, LblFix
 from services.player.scenario import Scenario
 from services.player.simulators import Event
 from shared import keys
 from shared.errors import InputRejected
+from shared.mc_params import check_config_overrides
+from shared.truth import truths_of
 
 from . import metrics
 from .config import LblNavConfig
@@ -70,13 +71,9 @@ class Params(BaseModel):
     def _check(self) -> Params:
         if self.vehicle is not None:
             keys.chunk(self.vehicle)
-        if "platform" in self.config:
-            raise ValueError("config.platform: give the vehicle as params.vehicle")
-        try:
-            self.core_config("check")
-        except ValidationError as exc:
-            first = exc.errors()[0]
-            raise ValueError(f"config.{'.'.join(str(p) for p in first['loc'])}: {first['msg']}") from None
+        check_config_overrides(
+            self.config, "platform", "the vehicle as params.vehicle", lambda: self.core_config("check")
+        )
         return self
 
     def core_config(self, vehicle: str, **overrides: Any) -> LblNavConfig:
@@ -124,12 +121,7 @@ def variant_metrics(
 
 
 def _truth(events: list[Event], vehicle: str) -> dict[int, tuple[float, float]]:
-    key = keys.truth(vehicle)
-    return {
-        ev.msg.header.stamp_ns: (ev.msg.position_m[0], ev.msg.position_m[1])
-        for ev in events
-        if ev.key == key and isinstance(ev.msg, Truth)
-    }
+    return {m.header.stamp_ns: (m.position_m[0], m.position_m[1]) for m in truths_of(events, vehicle)}
 
 
 def run_metrics(

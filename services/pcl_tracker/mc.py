@@ -29,6 +29,7 @@ from schemas.radar import BistaticConfigUpdate, BistaticScan
 from services.player.scenario import Scenario
 from services.player.simulators import NS_PER_S, Event
 from shared.errors import InputRejected
+from shared.truth import linear_at
 
 from . import metrics
 from .core import PclTracker
@@ -51,18 +52,6 @@ def scenario_targets(scenario: Scenario, receiver_id: str, illuminator_id: str) 
         assert isinstance(p, PclSimParams)
         if p.receiver_id == receiver_id and p.illuminator_id == illuminator_id:
             out += [t for t in p.target_ids() if t not in out]
-    return out
-
-
-def _truth_at(series: list[tuple[int, list[float]]], stamps_ns: np.ndarray) -> np.ndarray:
-    """States (T, 6) at the stamps: exact samples, linear in between, NaN outside the sampled span."""
-    t = np.array([s for s, _ in series], dtype=np.float64)
-    x = np.array([v for _, v in series], dtype=np.float64)
-    out = np.full((stamps_ns.size, 6), np.nan)
-    q = stamps_ns.astype(np.float64)
-    inside = (q >= t[0]) & (q <= t[-1])
-    for c in range(6):
-        out[inside, c] = np.interp(q[inside], t, x[:, c])
     return out
 
 
@@ -92,7 +81,8 @@ def run_metrics(
     true_states = np.full((len(scans), len(targets), 6), np.nan)
     for j, name in enumerate(targets):
         if truth.get(name):
-            true_states[:, j] = _truth_at(truth[name], stamps)
+            series = truth[name]  # exact samples, linear in between, NaN outside the sampled span
+            true_states[:, j] = linear_at([t for t, _ in series], [x for _, x in series], stamps)
     m = metrics.run_metrics(
         reports,
         true_states,

@@ -23,7 +23,7 @@ from collections import Counter
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from schemas import Message, Truth
 from schemas.rd_nav import RdNavFix, TdoaCycle, VehicleStatus
@@ -31,6 +31,8 @@ from services.player.scenario import Scenario
 from services.player.simulators import Event
 from shared import keys
 from shared.errors import InputRejected
+from shared.mc_params import check_config_overrides
+from shared.truth import linear_at, truths_of
 
 from .config import RdNavConfig
 from .core import RdNavCore
@@ -55,13 +57,7 @@ class Params(BaseModel):
     def _check(self) -> Params:
         if self.vehicle is not None:
             keys.chunk(self.vehicle)
-        if "auv_id" in self.config:
-            raise ValueError("config.auv_id: give the AUV as params.vehicle")
-        try:
-            self.core_config("check")
-        except ValidationError as exc:
-            first = exc.errors()[0]
-            raise ValueError(f"config.{'.'.join(str(p) for p in first['loc'])}: {first['msg']}") from None
+        check_config_overrides(self.config, "auv_id", "the AUV as params.vehicle", lambda: self.core_config("check"))
         return self
 
     def core_config(self, auv_id: str) -> RdNavConfig:
@@ -88,16 +84,14 @@ class _TruthTrack:
             ne = (p[0], p[1]) if m.header.frame_id == "base_ned" else (p[1], p[0])  # else [east, north, up]
             self.exact[m.header.stamp_ns] = ne
         self.t = np.array(sorted(self.exact), dtype=np.float64)
-        self.n = np.array([self.exact[int(s)][0] for s in self.t])
-        self.e = np.array([self.exact[int(s)][1] for s in self.t])
+        self.ne = np.array([self.exact[int(s)] for s in self.t], dtype=np.float64).reshape(-1, 2)
 
     def at(self, stamp_ns: int) -> tuple[float, float] | None:
         hit = self.exact.get(stamp_ns)
         if hit is not None:
             return hit
-        if self.t.size < 2 or not self.t[0] <= stamp_ns <= self.t[-1]:
-            return None
-        return float(np.interp(stamp_ns, self.t, self.n)), float(np.interp(stamp_ns, self.t, self.e))
+        n, e = linear_at(self.t, self.ne, [stamp_ns])[0]
+        return None if np.isnan(n) else (float(n), float(e))
 
 
 def _rows(fixes: list[RdNavFix], truth: _TruthTrack) -> list[tuple[float, ...]]:
@@ -121,7 +115,7 @@ def run_metrics(
     anything else is ignored) and the scenario's ``events`` (truth, the vehicle's own status reports)."""
     p = Params.model_validate(params, strict=True)
     auv = _vehicle(p, events)
-    truth = _TruthTrack([e.msg for e in events if e.key == keys.truth(auv) and isinstance(e.msg, Truth)])
+    truth = _TruthTrack(truths_of(events, auv))
     departures = sorted(
         e.stamp_ns
         for e in events

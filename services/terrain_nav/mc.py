@@ -24,6 +24,7 @@ from services.player.scenario import Scenario
 from services.player.simulators import Event
 from shared import keys
 from shared.errors import InputRejected
+from shared.truth import truths_of
 
 from . import metrics
 from .config import TerrainNavConfig
@@ -68,8 +69,7 @@ def _simulator_params(scenario: Scenario, vehicle: str | None) -> TerrainFlightP
 
 
 def _truths(events: list[Event], vehicle: str, scenario: Scenario) -> list[Truth]:
-    key = keys.truth(vehicle)
-    truths = [ev.msg for ev in events if ev.key == key and isinstance(ev.msg, Truth)]
+    truths = truths_of(events, vehicle)
     if not truths:
         raise ValueError(f"scenario {scenario.name}: no Truth of {vehicle} in the events")
     return truths
