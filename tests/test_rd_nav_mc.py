@@ -107,6 +107,26 @@ def test_coordinator_plugin_on_the_fleet_hour() -> None:
         assert res[auv]["scored"] >= 50 and pf["rms_m"] < 2.0 and pf["max_m"] < 10.0, (auv, pf)
 
 
+def _loss_run_3(**config: Any) -> dict[str, Any]:
+    """Run 3 of rd_rob_loss (seed 1) up to 6,300 s, with ``config`` over the file's estimator configuration."""
+    sc = load_scenario(SCENARIOS / "rd_rob_loss.yaml")
+    est = sc.estimators[0]
+    params = {**est.params, "config": {**est.params.get("config", {}), **config}}
+    sc = sc.model_copy(update={"duration_s": 6300.0, "estimators": [est.model_copy(update={"params": params})]})
+    res: dict[str, Any] = run_once(sc, 1, 3)["estimators"]["auv4"]
+    return res
+
+
+def test_loss_excursion_is_followed() -> None:
+    """T-ROB-4's hardest stretch at the file's seed: in run 3 a 3-sigma DR velocity excursion (~0.2 m/s) meets a run
+    of lost packets at 5,900-6,100 s. The digest's limit, max <= 12 m, must hold there; the negative control (the
+    digest's fixed q and 5 m re-seed rule over consecutive cycles only) must break it, or this test shows nothing."""
+    run = _loss_run_3()
+    assert run["pf_summary"]["max_m"] <= 12.0, run["pf_summary"]
+    old = _loss_run_3(q_drift_mps=0.0, reinit_drift_sigma=0.0, reinit_strict_chain=True)
+    assert old["pf_summary"]["max_m"] > 12.0, old["pf_summary"]
+
+
 # ------------------------------------------------------------------------------ full counts (slow) ------------
 #: scenario file -> (runs, checks on the pooled PF figures): the digest's limits (§6.3-§6.4)
 FULL: dict[str, tuple[int, dict[str, float]]] = {
@@ -135,18 +155,20 @@ def _check(p: dict[str, Any], limits: dict[str, float]) -> None:
             assert p[names[k]] <= lim, (k, p)
 
 
-#: a known failure at this seed (docs/rd_nav.md, "Not done"): in run 3 of rd_rob_loss a 3-sigma DR velocity excursion
-#: (0.22 m/s for ~200 s) during a stretch of lost packets loses lock, and the digest's re-initialisation rule (K = 3
-#: snapshot fixes agreeing within 5 m after DR propagation) cannot re-seed until three rejected full cycles fall within
-#: ~20 s: max 40.9 m, pooled RMS 1.61 m (the other 4 runs, and 20 core-level runs of other seeds: max <= 7.7 m)
-KNOWN_FAILURES = {"rd_rob_loss"}
+#: scenario files known to miss the digest at seed 1 (docs/rd_nav.md, "Not met"). rd_rob_racetrack: in run 3 the
+#: estimate drifts 30-45 m along the weakly observed radial direction 1.5 km beyond the apex while every cycle passes
+#: the gate (NIS 0.1-13, cloud sqrt(tr Q) 3-4.5 m): max 41-45 m for PF seeds 0-3 with the current configuration and
+#: 39.7-44.1 m with the digest's fixed q and re-seed rule (T-ROB-12: max <= 40; RMS and the no-alias criterion hold).
+#: rd_rob_loss missed T-ROB-4 until the correlated-drift process noise (q_drift_mps) and the span-dependent re-seed
+#: tolerance; test_loss_excursion_is_followed keeps that run as a regression case.
+KNOWN_FAILURES = {"rd_rob_racetrack"}
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize(
     "name",
     [
-        pytest.param(n, marks=pytest.mark.xfail(strict=True, reason="T-ROB-4 tail event at seed 1, see KNOWN_FAILURES"))
+        pytest.param(n, marks=pytest.mark.xfail(strict=True, reason="T-ROB-12 max at seed 1, see KNOWN_FAILURES"))
         if n in KNOWN_FAILURES
         else n
         for n in sorted(FULL)

@@ -152,9 +152,9 @@ def test_t_rob_7_receiver_clock_skew() -> None:
 
 # ------------------------------------------------------------------------------------------ T-ROB-8 ----
 def test_t_rob_8_undersized_process_noise() -> None:
-    """T-ROB-8: q_rel = 0.02, q_abs = 0.05 m: with gating + re-init RMS <= 1.0, max <= 8 m, re-inits > 0;
+    """T-ROB-8: q_rel = 0.02, q_abs = 0.05 m, no drift term: with gating + re-init RMS <= 1.0, max <= 8 m, re-inits > 0;
     without them the filter diverges (the digest's prototype: RMS 95 m), shown here as RMS > 5 m."""
-    small = {"q_rel": 0.02, "q_abs_m": 0.05}
+    small = {"q_rel": 0.02, "q_abs_m": 0.05, "q_drift_mps": 0.0}  # every process-noise term undersized
     agg, _ = mc(ref("inside", duration_s=3600.0), 2, 5800, **small)
     p = agg["pf"]
     assert p["rms_m"] <= 1.0 and p["max_m"] <= 8.0, p
@@ -223,7 +223,7 @@ def test_t_rob_12_alias_region_racetrack() -> None:
 # ------------------------------------------------------------------------------ full size (slow) ----
 @pytest.mark.slow
 def test_t_rob_full_sizes() -> None:
-    """T-ROB-1..12 at the digest's sizes (20-30 runs of 4 h; blackout 20 runs; racetrack 20 x 2 h)."""
+    """T-ROB-1..11 at the digest's sizes (20-30 runs of 4 h; blackout 20 runs)."""
     on, _ = mc(ref("inside"), 20, 20_000)
     off, _ = mc(ref("inside"), 20, 20_000, motion_compensation=False)
     assert on["pf"]["rms_m"] <= 0.70 and off["pf"]["rms_m"] > 3.0
@@ -241,11 +241,21 @@ def test_t_rob_full_sizes() -> None:
     assert step["reinit_total"] == 0 and abs(step["pf"]["rms_m"] / nominal["pf"]["rms_m"] - 1.0) <= 0.02
     p = mc(ref("inside", clock_skew_ppm=20.0), 30, 26_000)[0]["pf"]
     assert abs(p["mean_x_m"]) <= 0.15 and abs(p["mean_y_m"]) <= 0.15 and p["rms_m"] <= 0.70
-    agg = mc(ref("inside"), 30, 27_000, q_rel=0.02, q_abs_m=0.05)[0]
+    agg = mc(ref("inside"), 30, 27_000, q_rel=0.02, q_abs_m=0.05, q_drift_mps=0.0)[0]
     assert agg["pf"]["rms_m"] <= 1.0 and agg["pf"]["max_m"] <= 8.0 and agg["reinit_total"] > 0
     p = mc(ref("inside", node_error_sigma_m=0.5), 30, 28_000)[0]["pf"]
     assert p["rms_m"] <= 1.3 and p["max_m"] <= 5.0
     assert mc(ref("inside", sigma_f_s=0.2e-3), 30, 29_000, sigma_f_s=0.2e-3)[0]["pf"]["rms_m"] <= 0.75
     assert mc(ref("inside", c_bias_mps=1.5), 30, 30_000)[0]["pf"]["mean_x_m"] == pytest.approx(2.1, abs=0.4)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="T-ROB-12 not met at the digest's size: max step 26.3 m (<= 20), the PF over-confident 1.5 km beyond the "
+    "apex (RMS|e|/RMS sqrt(tr Q) 1.9; the digest's prototype 1.74); docs/rd_nav.md, 'Not met'",
+)
+def test_t_rob_12_full_size() -> None:
+    """T-ROB-12 at the digest's size (20 x 2 h): max step <= 20 m, max <= 40 m, RMS <= 10 m."""
     r = racetrack_checks(mc(ref("racetrack"), 20, 31_000)[1])
     assert r["max_step_m"] <= 20.0 and r["max_m"] <= 40.0 and r["rms_m"] <= 10.0

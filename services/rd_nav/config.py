@@ -26,6 +26,12 @@ class RdNavConfig(BaseModel):
     q_rel: float = Field(default=0.07, ge=0.0, description="process noise per step, fraction of DR path [E]")
     q_abs_m: float = Field(default=0.3, ge=0.0, description="process noise per step, absolute, m [E]")
     q_step_s: float = Field(default=10.0, gt=0.0, description="time step the q figures refer to (one REF cycle), s [E]")
+    q_drift_mps: float = Field(
+        default=0.05,
+        ge=0.0,
+        description="per-axis DR velocity error whose drift grows linearly with the time since the last full update "
+        "(lost or rejected cycles widen the cloud as the correlated DR error does); 0: the digest's q only, m/s [E]",
+    )
     q_dr_invalid_mps: float = Field(
         default=1.5, ge=0.0, description="extra diffusion per second while DR is invalid (frozen), m/s [E]"
     )
@@ -74,6 +80,17 @@ class RdNavConfig(BaseModel):
         default=15.0, ge=0.0, description="... and that late arrival is at least this late (c*delay), m [E]"
     )
     reinit_consistency_m: float = Field(default=5.0, gt=0.0, description="K snapshot fixes agree within, m [E]")
+    reinit_drift_sigma: float = Field(
+        default=3.0,
+        ge=0.0,
+        description="the consistency tolerance grows by this many DR velocity sigmas (sqrt(2) sigma_dr_velocity_mps) "
+        "times the fixes' time span; 0: the digest's fixed tolerance [E]",
+    )
+    reinit_strict_chain: bool = Field(
+        default=False,
+        description="the K fixes must come from K consecutive cycles (a partial cycle breaks the run, and a partial "
+        "cycle inside the gate ends it); off: partial cycles count towards K without a fix [E]",
+    )
     reinit_max_distance_m: float = Field(default=1000.0, gt=0.0, description="and lie within this of x_hat, m [E]")
     reinit_crlb_scale: float = Field(default=4.0, gt=0.0, description="re-seed cov = scale*P_CRLB + extra [E]")
     reinit_extra_var_m2: float = Field(default=0.25, ge=0.0, description="extra re-seed variance, m^2 [E]")

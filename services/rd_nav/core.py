@@ -116,6 +116,8 @@ class RdNavCore:
             cfg.reinit_crlb_scale,
             cfg.reinit_extra_var_m2,
             cfg.reinit_k_same_outlier,
+            drift_mps=cfg.reinit_drift_sigma * math.sqrt(2.0) * cfg.sigma_dr_velocity_mps,
+            strict_chain=cfg.reinit_strict_chain,
         )
         self.starter = Reinitialiser(
             cfg.reinit_k, cfg.reinit_consistency_m, math.inf, cfg.reinit_crlb_scale, cfg.reinit_extra_var_m2
@@ -132,6 +134,7 @@ class RdNavCore:
         self.t_state = 0.0
         self.dr_state: DrPoint | None = None
         self.t_last_update: float | None = None
+        self.t_last_fix: float | None = None  # last full (M >= 2) update, re-seed or start: the DR drift grows from it
         self.status = "INIT"
         self.reinit_count = 0
         self.snapshot_starts = 0
@@ -266,6 +269,7 @@ class RdNavCore:
         self.t_state = t
         self.dr_state = self.dr.at(t)
         self.t_last_update = None
+        self.t_last_fix = t  # the start disc holds the first cycle's worth of drift
         self.status = "INIT"
         self.reinit.clear()
 
@@ -504,9 +508,11 @@ class RdNavCore:
                     reject = "NO_OVERLAP"
             if reject is None:
                 self.t_last_update = cd.t1
+                if M >= 2:
+                    self.t_last_fix = cd.t1
                 event = "USED"
-                if not rescued:
-                    self.reinit.clear()
+                if not rescued and (M >= 2 or cfg.reinit_strict_chain):
+                    self.reinit.clear()  # a partial (M = 1) cycle inside the gate does not prove lock
             if (rescued or reject in ("NIS_GATE", "NO_OVERLAP")) and cfg.reinit:
                 # a cycle the filter could not use whole counts towards loss of lock (§4.4 step 8)
                 tag = None
@@ -522,7 +528,7 @@ class RdNavCore:
                         self.ekf.init(prop.mean, prop.cov)
                     self.reinit_count += 1
                     self.reinit.clear()
-                    self.t_last_update = cd.t1
+                    self.t_last_update = self.t_last_fix = cd.t1
                     event = "REINIT"
                     flags.append("REINIT")
             # EKF shadow: same inputs, its own gate
@@ -672,7 +678,16 @@ class RdNavCore:
         n = max(1, round(dt / cfg.q_step_s))
         q = cfg.q_rel * (b.path_m - a.path_m) / n + cfg.q_abs_m
         inv = b.invalid_s - a.invalid_s
-        return n * q * q + (cfg.q_dr_invalid_mps * inv) ** 2
+        var = n * q * q + (cfg.q_dr_invalid_mps * inv) ** 2
+        if cfg.q_drift_mps > 0.0 and self.t_last_fix is not None:
+            # a DR velocity error sigma_v that stays put (Gauss-Markov, tau >> T) moves the position by sigma_v*dt
+            # since the last full update: total variance (sigma_v*dt)^2, of which the first step's q already holds
+            # one cycle's worth, so nothing changes while every cycle updates the filter.
+            T = cfg.q_step_s
+            ta = max(a.t_s - self.t_last_fix, T)
+            tb = max(b.t_s - self.t_last_fix, T)
+            var += cfg.q_drift_mps**2 * max(tb * tb - ta * ta, 0.0)
+        return var
 
     def _predict_to(self, t: float) -> None:
         if t <= self.t_state or self.dr_state is None:
@@ -713,7 +728,7 @@ class RdNavCore:
         if not (np.isfinite(P).all() and np.all(np.linalg.eigvalsh(P) > 0.0)):
             return None
         b = self.dr.at(cd.t1)
-        return Snapshot(p=p.copy(), P_crlb=P, dr_xy=np.array([b.x_m, b.y_m]))
+        return Snapshot(p=p.copy(), P_crlb=P, dr_xy=np.array([b.x_m, b.y_m]), t_s=cd.t1)
 
     def _try_snapshot_start(self, cd: CycleData) -> None:
         """Without a start position: K consistent snapshot fixes start the filter (§4.5, [E])."""
@@ -745,7 +760,7 @@ class RdNavCore:
         self.initialised = True
         self.t_state = cd.t1
         self.dr_state = b
-        self.t_last_update = cd.t1
+        self.t_last_update = self.t_last_fix = cd.t1
         self.status = "INIT"
         self.snapshot_starts += 1
         self.starter.clear()

@@ -4,9 +4,13 @@ After K consecutive gated-out cycles, each rejected cycle's snapshot Gauss-Newto
 newest epoch with the DR displacement (if the same beacon's late arrival explains every one of them at the
 current estimate, ``k_same_outlier`` cycles are required instead: with M = 2 a repeated late arrival and a
 position error along the other hyperbola look alike for a few cycles); if the K fixes agree within
-``consistency_m`` and the newest lies within ``max_distance_m`` of the current estimate, the cloud is re-seeded as
-N(X_snap, scale * P_CRLB + extra * I). The same rule (without the distance check) starts a filter that
-has no start position.
+``consistency_m + drift_mps * span`` (span: the time between the oldest and the newest of them; ``drift_mps``
+bounds the DR velocity error, so a biased DR over a long run of rejected cycles cannot block the re-seed; 0 gives
+the digest's fixed 5 m) and the newest lies within ``max_distance_m`` of the current estimate, the cloud is
+re-seeded as N(X_snap, scale * P_CRLB + extra * I). A rejected cycle with no snapshot fix (a partial M = 1 cycle, or
+no Gauss-Newton solution) counts towards K but neither adds a fix nor breaks the run, unless ``strict_chain``
+(the K fixes must then come from K consecutive cycles). The same rule (without the distance check) starts a
+filter that has no start position.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ class Snapshot:
     p: F64  # (2,) m
     P_crlb: F64  # (2, 2) m^2
     dr_xy: F64  # (2,) cumulative DR at the epoch, m
+    t_s: float = 0.0  # epoch of the fix, s
 
 
 @dataclass(frozen=True)
@@ -46,6 +51,8 @@ class Reinitialiser:
         crlb_scale: float,
         extra_var_m2: float,
         k_same_outlier: int | None = None,
+        drift_mps: float = 0.0,
+        strict_chain: bool = True,
     ) -> None:
         self.k = k
         self.k_same_outlier = max(k, k_same_outlier or k)
@@ -53,6 +60,8 @@ class Reinitialiser:
         self.max_distance_m = max_distance_m
         self.crlb_scale = crlb_scale
         self.extra_var_m2 = extra_var_m2
+        self.drift_mps = drift_mps
+        self.strict_chain = strict_chain
         self.consecutive = 0
         self._snaps: deque[Snapshot | None] = deque(maxlen=k)
         self._tags: deque[str | None] = deque(maxlen=k)
@@ -66,6 +75,8 @@ class Reinitialiser:
         """Record a cycle the filter could not use whole: its snapshot fix (None if none could be computed)
         and, if one late arrival explains it at the current estimate, that arrival's beacon id."""
         self.consecutive += 1
+        if snap is None and not self.strict_chain:
+            return
         self._snaps.append(snap)
         self._tags.append(late_arrival)
 
@@ -84,7 +95,8 @@ class Reinitialiser:
         carried = np.array([s.p + (newest.dr_xy - s.dr_xy) for s in snaps if s is not None])
         diff = carried[:, None, :] - carried[None, :, :]
         spread = float(np.sqrt((diff**2).sum(axis=2)).max())
-        if spread > self.consistency_m:
+        span_s = max(s.t_s for s in snaps if s is not None) - min(s.t_s for s in snaps if s is not None)
+        if spread > self.consistency_m + self.drift_mps * span_s:
             return None
         if estimate is not None and float(np.hypot(*(newest.p - estimate))) > self.max_distance_m:
             return None
