@@ -11,10 +11,10 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, TypeVar
 
 import yaml
-from pydantic import BeforeValidator, Field
+from pydantic import BaseModel, BeforeValidator, Field
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 
@@ -75,3 +75,15 @@ class ServiceSettings(BaseSettings):
         env_view = cls()  # environment (and defaults)
         merged = {**file_data, **env_view.model_dump(exclude_unset=True), **overrides}
         return cls(**merged)
+
+
+ConfigT = TypeVar("ConfigT", bound=BaseModel)
+
+
+def core_config_of(settings: BaseModel, config_cls: type[ConfigT], **fixed: Any) -> ConfigT:
+    """The core configuration a service's settings embed: every ``config_cls`` field read from ``settings`` (a
+    settings class that subclasses both ServiceSettings and the core's config model), then ``fixed`` (the
+    instance's own id, which the service decides), validated by ``config_cls``."""
+    fields = {name: getattr(settings, name) for name in config_cls.model_fields}
+    fields.update(fixed)
+    return config_cls(**fields)

@@ -48,7 +48,7 @@ from schemas import RadarPlot, RadarSite, ScenarioMarker, TrackEnd
 from schemas.attitude import AttitudeEstimate
 from shared import codec, keys
 from shared.service import InputRejected, Output, Service, Subscription
-from shared.settings import ServiceSettings, ZenohSettings
+from shared.settings import ServiceSettings, ZenohSettings, core_config_of
 
 from .config import AttitudeConfig
 from .core import AttitudeCore
@@ -134,9 +134,7 @@ class AttitudeSettings(ServiceSettings, AttitudeConfig):
 
     def core_config(self, site_id: str) -> AttitudeConfig:
         """The core's configuration: the AttitudeConfig fields of these settings, for ``site_id``."""
-        fields = {name: getattr(self, name) for name in AttitudeConfig.model_fields}
-        fields["site_id"] = site_id
-        return AttitudeConfig(**fields)
+        return core_config_of(self, AttitudeConfig, site_id=site_id)
 
 
 class AttitudeService(Service):

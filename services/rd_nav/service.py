@@ -56,7 +56,7 @@ from schemas import (
 from schemas.rd_nav import BeaconAssignment, RdNavFix, TdoaCycle, VehicleStatus
 from shared import codec, keys
 from shared.service import InputRejected, Output, Service, Subscription
-from shared.settings import ServiceSettings, ZenohSettings
+from shared.settings import ServiceSettings, ZenohSettings, core_config_of
 
 from .config import RdNavConfig
 from .core import RdNavCore
@@ -130,9 +130,7 @@ class RdNavSettings(ServiceSettings, RdNavConfig):
 
     def core_config(self, auv_id: str) -> RdNavConfig:
         """The core's configuration: the RdNavConfig fields of these settings, for ``auv_id``."""
-        fields = {name: getattr(self, name) for name in RdNavConfig.model_fields}
-        fields["auv_id"] = auv_id
-        return RdNavConfig(**fields)
+        return core_config_of(self, RdNavConfig, auv_id=auv_id)
 
 
 class RdNavService(Service):
