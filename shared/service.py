@@ -141,6 +141,7 @@ class Service:
         self.zenoh_settings = zenoh_settings or ZenohSettings()
         self.instance = keys.chunk(settings.instance)
         self.source = f"{self.name}/{self.instance}"
+        Header(stamp_ns=0, source=self.source)  # publish stamps it unvalidated online: check it once here
         self.counters = Counters()
         self.session: zenoh.Session | None = None
         self._queue: queue.Queue[Any] = queue.Queue(maxsize=settings.queue_size)
@@ -227,16 +228,20 @@ class Service:
         return 0
 
     def publish(self, key: str, msg: Message) -> None:
-        """Stamp source and per-key seq, encode and put (offline: append to :attr:`outbox`)."""
+        """Stamp source and per-key seq, encode and put (offline: append to :attr:`outbox`).
+
+        Online the stamped bytes are encoded straight from ``msg`` (:func:`codec.encode_stamped`: the same bytes as
+        encoding the stamped copy, which is only built offline)."""
         seq = self._seq.get(key, 0)
         self._seq[key] = seq + 1
-        h = msg.header
-        header = Header(stamp_ns=h.stamp_ns, frame_id=h.frame_id, source=self.source, seq=seq)
-        stamped = msg.model_copy(update={"header": header})
         if self.session is None:
-            self.outbox.append(Output(key, stamped))
+            h = msg.header
+            header = Header(stamp_ns=h.stamp_ns, frame_id=h.frame_id, source=self.source, seq=seq)
+            self.outbox.append(Output(key, msg.model_copy(update={"header": header})))
             self.counters.published += 1
             return
+        if msg.header.stamp_ns < 0:  # what Header(...) above refuses (a core building its outputs unvalidated)
+            raise ValueError(f"{type(msg).__name__} on {key}: negative stamp {msg.header.stamp_ns} ns")
         pub = self._publishers.get(key)
         if pub is None:
             if len(self._publishers) >= self.max_publishers:
@@ -247,7 +252,9 @@ class Service:
             self._publishers[key] = pub
         else:
             self._publishers.move_to_end(key)
-        pub.put(codec.encode(stamped), encoding=codec.zenoh_encoding(codec.encoding_of(type(msg))))
+        pub.put(
+            codec.encode_stamped(msg, self.source, seq), encoding=codec.zenoh_encoding(codec.encoding_of(type(msg)))
+        )
         self.counters.published += 1
 
     def reject(self, key: str, reason: str, detail: str = "", stamp_ns: int = 0) -> None:

@@ -41,16 +41,19 @@ from .models import IDC, IDK, IUE, IUN, IX, IY, DrInterval, MotionModel, RangeRo
 
 M = TypeVar("M", bound=BaseModel)
 
-_DEFAULTS: dict[type, dict[str, Any]] = {}
+#: per model: its non-factory defaults, its number of fields, and whether it has a post-init hook
+_MODEL_INFO: dict[type, tuple[dict[str, Any], int, bool]] = {}
 
 
-def _defaults(cls: type[BaseModel]) -> dict[str, Any]:
-    """Non-factory defaults of a model (factory fields are always passed explicitly by the core)."""
-    d = _DEFAULTS.get(cls)
-    if d is None:
-        d = {n: f.default for n, f in cls.model_fields.items() if not f.is_required() and f.default_factory is None}
-        _DEFAULTS[cls] = d
-    return d
+def _model_info(cls: type[BaseModel]) -> tuple[dict[str, Any], int, bool]:
+    """Non-factory defaults of a model (factory fields are always passed explicitly by the core), its number of
+    fields and whether it has a post-init hook (class attributes read once: the hot path is a dict lookup)."""
+    info = _MODEL_INFO.get(cls)
+    if info is None:
+        fields = cls.model_fields
+        d = {n: f.default for n, f in fields.items() if not f.is_required() and f.default_factory is None}
+        info = _MODEL_INFO[cls] = (d, len(fields), cls.__pydantic_post_init__ is not None)
+    return info
 
 
 _setattr = object.__setattr__
@@ -60,8 +63,9 @@ def _construct(cls: type[M], kw: dict[str, Any]) -> M:
     """``cls.model_construct(**defaults, **kw)`` without its per-field loop (a fifth of its cost): every field of
     the model is given (the non-factory defaults merged in), so the instance is the one model_construct builds —
     the same ``__dict__`` and fields set, no extra, no private attributes (the schemas have none)."""
-    values = {**_defaults(cls), **kw}
-    if len(values) != len(cls.model_fields) or cls.__pydantic_post_init__ is not None:
+    defaults, n_fields, post_init = _model_info(cls)
+    values = {**defaults, **kw}
+    if len(values) != n_fields or post_init:
         return cls.model_construct(**values)
     obj = cls.__new__(cls)
     _setattr(obj, "__dict__", values)
@@ -101,6 +105,8 @@ class LblNavCore:
         self._open: dict[int, dict[str, _Range]] = {}
         self.buffer_dropped = 0
         self._sd2 = cfg.sigma_depth_m**2
+        self._validate = cfg.validate_outputs
+        self._frame_id = cfg.frame_id
         self._log10_threshold = math.log10(cfg.ratio_threshold)
         self._reset_estimation()
 
@@ -143,28 +149,34 @@ class LblNavCore:
         if isinstance(msg, NavReset):
             return self._reset(msg.header.stamp_ns, "nav_reset", msg.reason)
         stamp = msg.header.stamp_ns
-        checked: tuple[_Range, int, bool] | None = None
         if isinstance(msg, BeaconRange):
-            checked = self._check_range(msg)
-        elif isinstance(msg, SpeedLog | Heading | Depth | Current):
-            self._check_sample(msg)
-        else:
-            raise InputRejected("unexpected_type", type(msg).__name__)
-        outs = self._advance(stamp)
-        if checked is not None:
-            rng, k, late = checked
+            rng, k, late = self._check_range(msg)
+            outs = self._advance(stamp)
             if late:
                 outs += self._insert_late(k, rng)
             else:
                 self._open.setdefault(k, {})[rng.beacon_id] = rng
-        elif isinstance(msg, SpeedLog):
-            self.dr.speed.add(stamp, (msg.v_forward_mps, msg.v_starboard_mps))
+            return outs
+        if isinstance(msg, SpeedLog):
+            vals: tuple[float, ...] = (msg.v_forward_mps, msg.v_starboard_mps)
         elif isinstance(msg, Heading):
-            self.dr.heading.add(stamp, (msg.heading_rad,))
+            vals = (msg.heading_rad,)
+        elif isinstance(msg, Depth):
+            vals = (msg.depth_m,)
+        elif isinstance(msg, Current):
+            vals = (msg.u_north_mps, msg.u_east_mps)
+        else:
+            raise InputRejected("unexpected_type", type(msg).__name__)
+        self._check_sample(msg, vals)
+        outs = self._advance(stamp)
+        if isinstance(msg, SpeedLog):
+            self.dr.speed.add(stamp, vals)
+        elif isinstance(msg, Heading):
+            self.dr.heading.add(stamp, vals)
         elif isinstance(msg, Depth):
             self.depth_m = msg.depth_m
-        elif isinstance(msg, Current):
-            self.dr.current.add(stamp, (msg.u_north_mps, msg.u_east_mps))
+        else:
+            self.dr.current.add(stamp, vals)
         return outs
 
     def flush(self, until_stamp_ns: int | None = None) -> list[Message]:
@@ -180,25 +192,20 @@ class LblNavCore:
         return self._advance(until_stamp_ns)
 
     # ---- input checks (before any state change) -----------------------------------------------------------------
-    def _check_sample(self, msg: SpeedLog | Heading | Depth | Current) -> None:
+    def _check_sample(self, msg: SpeedLog | Heading | Depth | Current, vals: tuple[float, ...]) -> None:
+        """``vals``: the sample's values (what ``step`` stores)."""
         name = type(msg).__name__
         stamp = msg.header.stamp_ns
-        if isinstance(msg, SpeedLog):
-            vals: tuple[float, ...] = (msg.v_forward_mps, msg.v_starboard_mps)
-        elif isinstance(msg, Heading):
-            vals = (msg.heading_rad,)
-        elif isinstance(msg, Depth):
-            vals = (msg.depth_m,)
-        else:
-            vals = (msg.u_north_mps, msg.u_east_mps)
-        if not all(math.isfinite(v) for v in vals):
-            raise InputRejected("non_finite", f"{name} at {stamp} ns")
+        for v in vals:
+            if not math.isfinite(v):
+                raise InputRejected("non_finite", f"{name} at {stamp} ns")
         last = self._last.get(name)
+        dr_input = isinstance(msg, SpeedLog | Heading)
         if last is not None and stamp < last:
             raise InputRejected("stamp_backwards", f"{name} stamp {stamp} ns < last {last} ns")
-        if last is not None and stamp == last and isinstance(msg, SpeedLog | Heading):
+        if last is not None and stamp == last and dr_input:
             raise InputRejected("duplicate", f"{name} stamp {stamp} ns repeated")
-        if isinstance(msg, SpeedLog | Heading) and self._next_k is not None and stamp <= self.t_ns(self._next_k - 1):
+        if dr_input and self._next_k is not None and stamp <= self.t_ns(self._next_k - 1):
             raise InputRejected("late", f"{name} at {stamp} ns is older than the last closed epoch")
         self._last[name] = stamp
 
@@ -475,12 +482,16 @@ class LblNavCore:
     # ---- outputs -----------------------------------------------------------------------------------------------
     def _make(self, cls: type[M], **kw: Any) -> M:
         """Build an output model, validated unless ``validate_outputs`` is False (Monte-Carlo speed)."""
-        if self.cfg.validate_outputs:
+        return self._make_from(cls, kw)
+
+    def _make_from(self, cls: type[M], kw: dict[str, Any]) -> M:
+        """:meth:`_make` from a dict of the fields (not unpacked and packed again: the fix has two dozen)."""
+        if self._validate:
             return cls(**kw)
         return _construct(cls, kw)
 
     def _header(self, stamp: int) -> Header:
-        return self._make(Header, stamp_ns=max(stamp, 0), frame_id=self.cfg.frame_id)
+        return self._make_from(Header, {"stamp_ns": max(stamp, 0), "frame_id": self._frame_id})
 
     def _event(self, stamp: int, kind: str, **kw: Any) -> LblEvent:
         kw.setdefault("cluster_sizes", [])
@@ -511,18 +522,21 @@ class LblNavCore:
             "degraded": (not dr.valid) or dr.gap_s > 0.0,
         }
         if bank is None:
-            return self._make(LblFix, valid=False, buffered_epochs=len(self.buffer), hypotheses=[], **common)
+            common.update(valid=False, buffered_epochs=len(self.buffer), hypotheses=[])
+            return self._make_from(LblFix, common)
         probs = bank.probabilities()
         hyps = []
         for h in bank.hyps:
             X, P = h.current()
             hyps.append(
-                self._make(
+                self._make_from(
                     Hypothesis,
-                    hypothesis_id=h.hyp_id,
-                    position_m=[float(X[IX]), float(X[IY]), depth],
-                    position_cov_m2=self._pos_cov(P),
-                    probability=float(probs[h.hyp_id]),
+                    {
+                        "hypothesis_id": h.hyp_id,
+                        "position_m": [float(X[IX]), float(X[IY]), depth],
+                        "position_cov_m2": self._pos_cov(P),
+                        "probability": float(probs[h.hyp_id]),
+                    },
                 )
             )
         lr = bank.log_ratio()
@@ -539,12 +553,12 @@ class LblNavCore:
             ranges_rejected=report.rejected_current if report else 0,
         )
         if len(bank.hyps) != 1:
-            return self._make(LblFix, valid=False, **common)
+            common["valid"] = False
+            return self._make_from(LblFix, common)
         X, P = bank.hyps[0].current()
         x = X.tolist()
         cov = P.tolist()
-        return self._make(
-            LblFix,
+        common.update(
             valid=True,
             position_m=[x[IX], x[IY], depth],
             position_cov_m2=self._pos_cov_list(cov),
@@ -559,5 +573,5 @@ class LblNavCore:
             sigma_dU_north_mps=math.sqrt(max(cov[IUN][IUN], 0.0)),
             sigma_dU_east_mps=math.sqrt(max(cov[IUE][IUE], 0.0)),
             state_cov=cov,
-            **common,
         )
+        return self._make_from(LblFix, common)

@@ -116,24 +116,31 @@ class HypothesisFilter:
         nu = np.empty(m)
         extra = np.zeros(m)
         H = np.zeros((m, n))
-        X, P = self.X, self.P
         for r, row in enumerate(rows):
-            px, py, pdc = self.idx(row.block)
-            x, y = float(X[px]), float(X[py])
-            h, hx, hy, hdc = row.predict(x, y, float(X[pdc]))
-            if second_order:
-                a, b, c = row.hessian_xy(x, y)
-                pxx, pxy, pyy = P[px, px], P[px, py], P[py, py]
-                h += 0.5 * (a * pxx + 2.0 * b * pxy + c * pyy)
-                # (Hess P) = [[a pxx + b pxy, a pxy + b pyy], [b pxx + c pxy, b pxy + c pyy]]
-                m00, m01 = a * pxx + b * pxy, a * pxy + b * pyy
-                m10, m11 = b * pxx + c * pxy, b * pxy + c * pyy
-                extra[r] = 0.5 * (m00 * m00 + 2.0 * m01 * m10 + m11 * m11)
-            nu[r] = row.value - h
-            H[r, px] = hx
-            H[r, py] = hy
-            H[r, pdc] = hdc
+            nu[r], extra[r], H[r] = self.innovation(row, second_order)
         return nu, H, extra
+
+    def innovation(self, row: Row, second_order: bool = False) -> tuple[float, float, F64]:
+        """One row of :meth:`innovations`: (nu, extra variance, the row of H)."""
+        px, py, pdc = self.idx(row.block)
+        X = self.X
+        x, y = float(X[px]), float(X[py])
+        h, hx, hy, hdc = row.predict(x, y, float(X[pdc]))
+        extra = 0.0
+        if second_order:
+            P = self.P
+            a, b, c = row.hessian_xy(x, y)
+            pxx, pxy, pyy = P[px, px], P[px, py], P[py, py]
+            h += 0.5 * (a * pxx + 2.0 * b * pxy + c * pyy)
+            # (Hess P) = [[a pxx + b pxy, a pxy + b pyy], [b pxx + c pxy, b pxy + c pyy]]
+            m00, m01 = a * pxx + b * pxy, a * pxy + b * pyy
+            m10, m11 = b * pxx + c * pxy, b * pxy + c * pyy
+            extra = float(0.5 * (m00 * m00 + 2.0 * m01 * m10 + m11 * m11))
+        Hr = np.zeros(X.size)
+        Hr[px] = hx
+        Hr[py] = hy
+        Hr[pdc] = hdc
+        return float(row.value - h), extra, Hr
 
     def update(self, nu: F64, H: F64, R: F64, rows: list[Row], iterations: int = 1) -> None:
         """Joseph-form EKF update; accumulates A += nu^T S^-1 nu and ln B += ln det S.
@@ -152,6 +159,9 @@ class HypothesisFilter:
                 nu_j, H, _ = self.innovations(rows)
                 nu = nu_j - H @ (x_prior - x_j)
             self.X = x_prior
+        if H.shape[0] == 1:
+            self._update_scalar(float(nu[0]), H[0], float(R[0, 0]), rows)
+            return
         PHt = P @ H.T
         S = H @ PHt + R
         m = S.shape[0]
@@ -175,6 +185,27 @@ class HypothesisFilter:
         self.P = 0.5 * (Pn + Pn.T)
         self.A += a
         self.lnB += logdet
+        self._log_rows(rows)
+
+    def _update_scalar(self, nu: float, h: F64, r: float, rows: list[Row]) -> None:
+        """The Joseph-form update of :meth:`update` for one row (the usual case), on 1-D vectors: the same
+        products as the (n, 1) and (1, n) matrices (each entry of an outer product is one product), without the
+        matrix-vector call overhead. ``h`` is the row of H, ``r`` the variance of the row."""
+        P = self.P
+        PHt = P @ h
+        s = float(h @ PHt) + r
+        if not s > 0.0:
+            raise np.linalg.LinAlgError("innovation variance is not positive")
+        K = PHt / s
+        self.X = self.X + K * nu
+        IKH = _eye(P.shape[0]) - K[:, None] * h
+        Pn = IKH @ P @ IKH.T + (K * r)[:, None] * K
+        self.P = 0.5 * (Pn + Pn.T)
+        self.A += nu**2 / s
+        self.lnB += math.log(s)
+        self._log_rows(rows)
+
+    def _log_rows(self, rows: list[Row]) -> None:
         for row in rows:
             self.n_rows += 1
             self.row_log.append((row.stamp_ns, row.key))
@@ -315,6 +346,9 @@ class HypothesisBank:
         """Reject a row only if it is an outlier under every live hypothesis; then all hypotheses drop it."""
         if not rows:
             return
+        if len(rows) == 1:
+            self._update_one(rows[0], report)
+            return
         cfg = self.cfg
         R = noise_cov([r.group for r in rows], cfg.sigma_delta_m, cfg.sigma_v_m)
         r_diag = cfg.sigma_delta_m**2 + cfg.sigma_v_m**2
@@ -348,6 +382,37 @@ class HypothesisBank:
         for h, (nu, H, extra) in zip(self.hyps, per_hyp, strict=True):
             Rh = Rk + np.diag(extra[keep]) if so else Rk
             h.update(nu[keep], H[keep], Rh, kept, cfg.ekf_iterations)
+
+    def _update_one(self, row: Row, report: StepReport) -> None:
+        """:meth:`update_all` for a single row (most epochs) on scalars: the same gate and update, the same
+        operations in the same order, without the per-row arrays."""
+        cfg = self.cfg
+        r_diag = cfg.sigma_delta_m**2 + cfg.sigma_v_m**2  # R = noise_cov([group]) = [[r_diag]]
+        so = cfg.second_order
+        rows = [row]
+        per_hyp = []
+        outlier_everywhere = True
+        for h in self.hyps:
+            nu0, extra0, hv = h.innovation(row, so)
+            s_diag = float(((hv @ h.P) * hv).sum()) + r_diag + extra0
+            outlier_everywhere &= nu0 * nu0 > self.gate * s_diag
+            per_hyp.append((nu0, hv, extra0))
+        if row.block == "i":
+            if outlier_everywhere:
+                report.rejected_current += 1
+            else:
+                report.used_current += 1
+        elif outlier_everywhere:
+            report.rejected_buffered += 1
+        if outlier_everywhere:
+            report.rejected_keys.append(f"{row.stamp_ns}:{row.key}")
+            return
+        for h, (nu0, hv, extra0) in zip(self.hyps, per_hyp, strict=True):
+            r = r_diag + extra0 if so else r_diag
+            if cfg.ekf_iterations > 1:
+                h.update(np.array([nu0]), hv[None, :], np.array([[r]]), rows, cfg.ekf_iterations)
+            else:
+                h._update_scalar(nu0, hv, r, rows)
 
     # ---- ratio, decision (6) and merge -----------------------------------------------------------------------
     def log_ratio(self) -> float | None:

@@ -18,6 +18,7 @@ import contextlib
 import logging
 import threading
 import time
+from collections import Counter
 from dataclasses import dataclass, field
 
 import zenoh
@@ -29,7 +30,7 @@ from .pacing import Pacer
 from .publish import Publishers
 from .scenario import Scenario
 from .simulators import InteractiveSimulator
-from .timeline import build, marker, player_source, stamp
+from .timeline import build, marker, player_source
 
 log = logging.getLogger("fixstream.player")
 
@@ -131,7 +132,10 @@ def play_scenario(
             spec = s.exchange_spec() if isinstance(s, InteractiveSimulator) else None
             if spec is not None:
                 exchanges[sid] = ZenohExchange(session, sid, spec, source, instance, stop)
-        events = stamp(sim.raw_events(dict(exchanges)), source)
+        # the events of timeline.iter_events: raw events stamped with source and per-key seq as they are encoded
+        # (timeline.stamp's copies of each message cost more than encoding it)
+        events = sim.raw_events(dict(exchanges))
+        seq: Counter[str] = Counter()
         t0 = time.monotonic()
         last_stamp = 0
         pubs.put(scenario_key, marker(scenario, seed, "start", 0, 0, instance))
@@ -141,7 +145,8 @@ def play_scenario(
                 completed = False
                 log.warning("stopped after %d messages", sum(pubs.counts.values()) - 1)
                 break
-            pubs.put(ev.key, ev.msg)
+            pubs.put_stamped(ev.key, ev.msg, source, seq[ev.key])
+            seq[ev.key] += 1
             last_stamp = ev.stamp_ns
         published = {k: n for k, n in pubs.counts.items() if k != scenario_key}
         pubs.put(scenario_key, marker(scenario, seed, "end", last_stamp, 1, instance, published))

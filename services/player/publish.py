@@ -33,6 +33,10 @@ class Publishers:
     def put(self, key: str, msg: Message) -> None:
         self.put_bytes(key, codec.encode(msg), codec.encoding_of(type(msg)))
 
+    def put_stamped(self, key: str, msg: Message, source: str, seq: int) -> None:
+        """``put`` of ``msg`` with ``header.source`` and ``header.seq`` replaced (the same bytes, no copy built)."""
+        self.put_bytes(key, codec.encode_stamped(msg, source, seq), codec.encoding_of(type(msg)))
+
     def close(self) -> None:
         for pub in self._pubs.values():
             with contextlib.suppress(Exception):  # already gone with the session
