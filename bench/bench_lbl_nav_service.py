@@ -24,10 +24,7 @@ from __future__ import annotations
 import contextlib
 import os
 import statistics
-import subprocess
-import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -39,17 +36,15 @@ from services.lbl_nav.service import LblNavService, LblNavSettings, fix_key
 from services.player.scenario import load_scenario
 from services.player.timeline import scenario_events
 from shared.errors import InputRejected
-from shared.session import open_session
-from shared.settings import ZenohSettings
 
 from .report import emit
-from .stack import REPO, router
+from .service_harness import client_env, play_timed, start_service, stop
+from .stack import router
 
 TARGET_EPOCHS_PER_S = 2000.0
 #: players per case (each a fresh run of the scenario through the same service); the table gives the median and
 #: the best run: the machine is shared, so the best is the least disturbed
 RUNS = {"s1_run": 5, "tracking": 3}
-_TICK = os.sysconf("SC_CLK_TCK")
 FIX = fix_key("auv1")
 
 
@@ -66,12 +61,6 @@ def scenario_doc(name: str, post_launch_s: float) -> dict[str, Any]:
             {"kind": "lbl_nav", "id": "auv1", "params": {"platform": "auv1", "post_launch_s": post_launch_s}}
         ],
     }
-
-
-def cpu_s(pid: int) -> float:
-    """User + system CPU time of a process (all its threads), s."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / _TICK
 
 
 def offline_costs(path: Path, seed: int, start_epoch: int) -> tuple[float, float, int]:
@@ -106,43 +95,12 @@ def offline_costs(path: Path, seed: int, start_epoch: int) -> tuple[float, float
 
 def play_once(endpoint: str, path: Path, service_pid: int, total: int, warm: int, seed: int) -> dict[str, float]:
     """Play the scenario once; time the fixes from number ``warm`` (1-based) to ``total``."""
-    session = open_session(ZenohSettings(mode="client", connect=[endpoint]))
-    count = 0
-    marks: dict[str, tuple[float, float]] = {}
-    done = threading.Event()
-    lock = threading.Lock()
-
-    def on_fix(_sample: object) -> None:
-        nonlocal count
-        with lock:
-            count += 1
-            n = count
-        if n == warm:
-            marks["warm"] = (time.perf_counter(), cpu_s(service_pid))
-        if n == total:
-            marks["end"] = (time.perf_counter(), cpu_s(service_pid))
-            done.set()
-
-    sub = session.declare_subscriber(FIX, on_fix)
-    env = dict(os.environ, FIXSTREAM_ZENOH_MODE="client", FIXSTREAM_ZENOH_CONNECT=endpoint)
-    cmd = [sys.executable, "-m", "shared.cli.main", "--log-level", "WARNING", "play", str(path), "--rate", "0"]
-    try:
-        t0 = time.perf_counter()
-        play = subprocess.run([*cmd, "--seed", str(seed)], env=env, cwd=REPO, capture_output=True, text=True)
-        t_played = time.perf_counter() - t0
-        if play.returncode != 0:
-            raise RuntimeError(f"player failed: {play.stderr[-2000:]}")
-        if not done.wait(timeout=300):
-            raise RuntimeError(f"only {count} of {total} fixes arrived")
-    finally:
-        sub.undeclare()
-        session.close()
-    (tw, cw), (te, ce) = marks["warm"], marks["end"]
+    w = play_timed(endpoint, path, FIX, service_pid, warm, total, seed=seed)
     timed = total - warm
     return {
-        "epochs_per_s_wall": timed / (te - tw),
-        "service_cpu_us_per_epoch": (ce - cw) / timed * 1e6,
-        "player_wall_s": t_played,
+        "epochs_per_s_wall": timed / w.wall_s,
+        "service_cpu_us_per_epoch": w.cpu_s / timed * 1e6,
+        "player_wall_s": w.player_wall_s,
     }
 
 
@@ -151,15 +109,12 @@ def run_case(endpoint: str, tmp: Path, name: str, post_launch_s: float, warm_epo
     path.write_text(yaml.safe_dump(scenario_doc(f"bench_lbl_{name}", post_launch_s)))
     offline_s, core_s, total = offline_costs(path, 1, warm_epoch)
     total += 1  # the last epoch is closed by the player's end marker
-    env = dict(os.environ, FIXSTREAM_ZENOH_MODE="client", FIXSTREAM_ZENOH_CONNECT=endpoint)
-    svc_env = dict(env, FIXSTREAM_LBL_NAV_INSTANCE="bench", FIXSTREAM_LBL_NAV_VEHICLE="auv1")
-    cmd = [sys.executable, "-m", "shared.cli.main", "--log-level", "WARNING", "run", "lbl_nav"]
-    service = subprocess.Popen(cmd, env=svc_env, cwd=REPO)
+    env = client_env(endpoint, {"FIXSTREAM_LBL_NAV_INSTANCE": "bench", "FIXSTREAM_LBL_NAV_VEHICLE": "auv1"})
+    service = start_service("lbl_nav", env)
     try:
         results = [play_once(endpoint, path, service.pid, total, warm_epoch + 1, 1 + i) for i in range(runs)]
     finally:
-        service.terminate()
-        service.wait(timeout=30)
+        stop(service)
     med = {k: statistics.median(r[k] for r in results) for k in results[0]}
     best = max(results, key=lambda r: r["epochs_per_s_wall"])
     return {

@@ -53,7 +53,7 @@ from schemas import BeaconRange, BeaconTable, Current, Depth, Heading, Message, 
 from schemas.lbl_nav import LblEvent, LblFix
 from shared import codec, keys
 from shared.service import Output, Service, Subscription
-from shared.settings import ServiceSettings, ZenohSettings
+from shared.settings import ServiceSettings, ZenohSettings, core_config_of
 
 from .config import LblNavConfig
 from .core import LblNavCore
@@ -119,9 +119,7 @@ class LblNavSettings(ServiceSettings, LblNavConfig):
 
     def core_config(self, vehicle: str) -> LblNavConfig:
         """The core's configuration: the LblNavConfig fields of these settings, for ``vehicle``."""
-        fields = {name: getattr(self, name) for name in LblNavConfig.model_fields}
-        fields["platform"] = vehicle
-        return LblNavConfig(**fields)
+        return core_config_of(self, LblNavConfig, platform=vehicle)
 
 
 class LblNavService(Service):
