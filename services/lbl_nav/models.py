@@ -190,9 +190,13 @@ class RangeRow:
     def predict(self, x: float, y: float, dc: float) -> tuple[float, float, float, float]:
         ex, ey, ez = self.bx - x, self.by - y, self.bz - self.z
         D = math.sqrt(ex * ex + ey * ey + ez * ez)
+        # predicted travel time D / c~ (c~ = value / T_s), not the measured one: the measured T_s contains this
+        # range's noise, and a Jacobian correlated with the innovation biases the dc update (E[T_s nu] != 0)
+        T = D * self.T_s / self.value if self.value > 0.0 else self.T_s
         if D < 1e-9:
-            return dc * self.T_s, 0.0, 0.0, self.T_s
-        return D + dc * self.T_s, -ex / D, -ey / D, self.T_s
+            return dc * T, 0.0, 0.0, T
+        f = 1.0 + dc * T / D
+        return D + dc * T, -ex / D * f, -ey / D * f, T
 
     def hessian_xy(self, x: float, y: float) -> tuple[float, float, float]:
         """Hessian of the slant range in the horizontal position: (I - g g^T) / D, g = (x - x^j, y - y^j) / D."""
