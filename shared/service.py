@@ -144,7 +144,9 @@ class Service:
         Header(stamp_ns=0, source=self.source)  # publish stamps it unvalidated online: check it once here
         self.counters = Counters()
         self.session: zenoh.Session | None = None
-        self._queue: queue.Queue[Any] = queue.Queue(maxsize=settings.queue_size)
+        #: C-level FIFO (no Python lock/condition per put and get); the bound is kept by _enqueue
+        self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._queue_max = settings.queue_size
         self._stop = threading.Event()
         self._seq: dict[str, int] = {}
         self._publishers: OrderedDict[str, zenoh.Publisher] = OrderedDict()
@@ -206,8 +208,7 @@ class Service:
 
     def stop(self) -> None:
         self._stop.set()
-        with contextlib.suppress(queue.Full):
-            self._queue.put_nowait(_STOP)
+        self._queue.put(_STOP)
 
     def install_signal_handlers(self) -> None:
         def handler(signum: int, frame: FrameType | None) -> None:
@@ -434,7 +435,10 @@ class Service:
 
     def _enqueue(self, sample: zenoh.Sample) -> None:
         item = (str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding), time.time_ns())
-        self._queue.put(item)
+        q = self._queue
+        while q.qsize() >= self._queue_max and not self._stop.is_set():
+            time.sleep(0.001)  # back-pressure: hold Zenoh's callback thread until the loop has caught up
+        q.put(item)
 
     def _declare(self) -> None:
         assert self.session is not None
