@@ -250,11 +250,6 @@ def test_t_rob_full_sizes() -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="T-ROB-12 not met at the digest's size: max step 26.3 m (<= 20), a re-seed after the estimate drifted 25 m "
-    "along the weak radial direction 1.5 km beyond the apex (spread ratio 1.9; the prototype 1.74); docs/rd_nav.md",
-)
 def test_t_rob_12_full_size() -> None:
     """T-ROB-12 at the digest's size (20 x 2 h): max step <= 20 m, max <= 40 m, RMS <= 10 m."""
     r = racetrack_checks(mc(ref("racetrack"), 20, 31_000)[1])

@@ -29,8 +29,15 @@ class RdNavConfig(BaseModel):
     q_drift_mps: float = Field(
         default=0.05,
         ge=0.0,
-        description="per-axis DR velocity error whose drift grows linearly with the time since the last full update "
-        "(lost or rejected cycles widen the cloud as the correlated DR error does); 0: the digest's q only, m/s [E]",
+        description="per-axis Gauss-Markov DR velocity error (correlation time q_drift_tau_s) whose path integral "
+        "widens the cloud from the last complete, well-conditioned update on (lost or rejected cycles and weak "
+        "geometry do not observe it); nothing while every cycle updates the filter; 0: the digest's q only, m/s [E]",
+    )
+    q_drift_tau_s: float = Field(default=300.0, gt=0.0, description="correlation time of that DR velocity error, s [E]")
+    q_drift_weak_geometry: bool = Field(
+        default=True,
+        description="a complete cycle flagged DEGRADED_GEOMETRY does not end the drift growth (it cannot see the "
+        "DR velocity error along its weak direction) [E]",
     )
     q_dr_invalid_mps: float = Field(
         default=1.5, ge=0.0, description="extra diffusion per second while DR is invalid (frozen), m/s [E]"

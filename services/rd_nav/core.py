@@ -508,7 +508,7 @@ class RdNavCore:
                     reject = "NO_OVERLAP"
             if reject is None:
                 self.t_last_update = cd.t1
-                if M >= 2:
+                if M >= 2 and not (cfg.q_drift_weak_geometry and "DEGRADED_GEOMETRY" in flags):
                     self.t_last_fix = cd.t1
                 event = "USED"
                 if not rescued and (M >= 2 or cfg.reinit_strict_chain):
@@ -680,13 +680,16 @@ class RdNavCore:
         inv = b.invalid_s - a.invalid_s
         var = n * q * q + (cfg.q_dr_invalid_mps * inv) ** 2
         if cfg.q_drift_mps > 0.0 and self.t_last_fix is not None:
-            # a DR velocity error sigma_v that stays put (Gauss-Markov, tau >> T) moves the position by sigma_v*dt
-            # since the last full update: total variance (sigma_v*dt)^2, of which the first step's q already holds
-            # one cycle's worth, so nothing changes while every cycle updates the filter.
+            # a Gauss-Markov DR velocity error (sigma_v, tau) moves the position by its path integral since the last
+            # complete, well-conditioned update: variance sigma_v^2 * 2 tau^2 (dt/tau - 1 + exp(-dt/tau)) (about
+            # (sigma_v dt)^2 for dt << tau), of which the first step's q already holds one cycle's worth, so nothing
+            # changes while every cycle updates the filter.
             T = cfg.q_step_s
             ta = max(a.t_s - self.t_last_fix, T)
             tb = max(b.t_s - self.t_last_fix, T)
-            var += cfg.q_drift_mps**2 * max(tb * tb - ta * ta, 0.0)
+            var += cfg.q_drift_mps**2 * max(
+                _gm_path_var(tb, cfg.q_drift_tau_s) - _gm_path_var(ta, cfg.q_drift_tau_s), 0.0
+            )
         return var
 
     def _predict_to(self, t: float) -> None:
@@ -844,3 +847,12 @@ class RdNavCore:
             cycles_since_update=self._cycles_since_update(t),
             flags=sorted(set(flags))[:32],
         )
+
+
+def _gm_path_var(dt: float, tau: float) -> float:
+    """Variance of the path integral of a unit-variance Gauss-Markov velocity error over dt (correlation time tau),
+    s^2: 2 tau^2 (dt/tau - 1 + exp(-dt/tau)); about dt^2 for dt << tau, 2 tau dt for dt >> tau."""
+    x = dt / tau
+    if x < 1e-4:
+        return dt * dt
+    return 2.0 * tau * tau * (x - 1.0 + math.exp(-x))
