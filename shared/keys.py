@@ -13,6 +13,9 @@ fixstream/scenario/<name>                  (player start/end markers)
 from __future__ import annotations
 
 import re
+from typing import Annotated
+
+from pydantic import AfterValidator
 
 ROOT = "fixstream"
 _CHUNK = re.compile(r"^[A-Za-z0-9_.\-]+$")
@@ -23,6 +26,10 @@ def chunk(value: str) -> str:
     if not _CHUNK.match(value):
         raise ValueError(f"invalid key chunk {value!r}: use letters, digits, '_', '-', '.'")
     return value
+
+
+#: a settings or parameter field holding one key chunk (validated by :func:`chunk`)
+Chunk = Annotated[str, AfterValidator(chunk)]
 
 
 def _key(*parts: str) -> str:

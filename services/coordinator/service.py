@@ -29,7 +29,7 @@ import logging
 from collections import Counter
 from typing import Any, ClassVar, Literal, cast
 
-from pydantic import Field, field_validator
+from pydantic import Field
 from pydantic_settings import SettingsConfigDict
 
 from schemas import ScenarioMarker
@@ -86,15 +86,10 @@ class CoordinatorSettings(ServiceSettings, CoordinatorConfig):
 
     model_config = SettingsConfigDict(env_prefix="FIXSTREAM_COORDINATOR_", extra="ignore", frozen=True)
 
-    group: str | None = Field(default=None, description="vehicle group (key chunk); None: the instance name")
+    group: keys.Chunk | None = Field(default=None, description="vehicle group (key chunk); None: the instance name")
     reply: bool = Field(default=True, description="publish a CoordinatorReply for every input (closed-loop runs)")
     reset_on_scenario_end: bool = Field(default=True, description="start a fresh core after the player's end marker")
     report_alarms: bool = Field(default=True, description="report the core's alarms on diag")
-
-    @field_validator("group")
-    @classmethod
-    def _group_chunk(cls, v: str | None) -> str | None:
-        return None if v is None else keys.chunk(v)
 
     def core_config(self) -> CoordinatorConfig:
         """The core's configuration: the CoordinatorConfig fields of these settings."""

@@ -46,7 +46,7 @@ import logging
 from collections import Counter
 from typing import Any, ClassVar, Literal, cast
 
-from pydantic import Field, field_validator
+from pydantic import Field
 from pydantic_settings import SettingsConfigDict
 
 from schemas import BeaconRange, BeaconTable, Current, Depth, Heading, Message, NavReset, ScenarioMarker, SpeedLog
@@ -99,7 +99,7 @@ class LblNavSettings(ServiceSettings, LblNavConfig):
 
     model_config = SettingsConfigDict(env_prefix="FIXSTREAM_LBL_NAV_", extra="ignore", frozen=True)
 
-    vehicle: str | None = Field(default=None, description="vehicle id in the keys (default: the instance name)")
+    vehicle: keys.Chunk | None = Field(default=None, description="vehicle id in the keys (default: the instance name)")
     platform: str | None = Field(  # type: ignore[assignment]
         default=None, description="not used: the outputs' platform is the vehicle"
     )
@@ -111,11 +111,6 @@ class LblNavSettings(ServiceSettings, LblNavConfig):
     )
     reset_on_scenario_end: bool = Field(default=True, description="start a fresh core after the player's end marker")
     report_events: bool = Field(default=True, description="report the core's problem events on diag")
-
-    @field_validator("vehicle")
-    @classmethod
-    def _vehicle_chunk(cls, v: str | None) -> str | None:
-        return None if v is None else keys.chunk(v)
 
     def core_config(self, vehicle: str) -> LblNavConfig:
         """The core's configuration: the LblNavConfig fields of these settings, for ``vehicle``."""

@@ -38,7 +38,7 @@ import logging
 from collections import Counter
 from typing import Any, ClassVar, Literal, cast
 
-from pydantic import Field, field_validator
+from pydantic import Field
 from pydantic_settings import SettingsConfigDict
 
 from schemas import (
@@ -115,18 +115,13 @@ class RdNavSettings(ServiceSettings, RdNavConfig):
 
     model_config = SettingsConfigDict(env_prefix="FIXSTREAM_RD_NAV_", extra="ignore", frozen=True)
 
-    auv_id: str | None = Field(  # type: ignore[assignment]
+    auv_id: keys.Chunk | None = Field(  # type: ignore[assignment]
         default=None, description="the moving AUV this instance navigates (key chunk); None: the instance name"
     )
     publish_ekf: bool = Field(default=True, description="publish the EKF shadow's fixes on .../ekf")
     publish_cycles: bool = Field(default=True, description="publish every TdoaCycle on .../cycle")
     reset_on_scenario_end: bool = Field(default=True, description="start a fresh core after the player's end marker")
     report_events: bool = Field(default=True, description="report the filter's events on diag")
-
-    @field_validator("auv_id")
-    @classmethod
-    def _auv_chunk(cls, v: str | None) -> str | None:
-        return None if v is None else keys.chunk(v)
 
     def core_config(self, auv_id: str) -> RdNavConfig:
         """The core's configuration: the RdNavConfig fields of these settings, for ``auv_id``."""

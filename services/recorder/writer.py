@@ -166,15 +166,20 @@ class RotatingMcapWriter:
         """Bytes of the current file on disk (closed chunks only)."""
         return self._file.stream.tell() if self._file is not None else 0
 
-    def write(self, topic: str, msg: Message, log_time_ns: int) -> None:
-        """Add one message on channel ``topic`` (the key expression); ``log_time_ns`` is the receive time."""
-        now = self._clock()
+    def _current(self, now: float) -> _OpenFile:
+        """The file to write to at ``now``: the open one, or a new one once rotation by duration is due."""
         f = self._file
         if f is not None and self._duration_due(f, now):
             self.finish()
             f = None
         if f is None:
             f = self._file = self._open(now)
+        return f
+
+    def write(self, topic: str, msg: Message, log_time_ns: int) -> None:
+        """Add one message on channel ``topic`` (the key expression); ``log_time_ns`` is the receive time."""
+        now = self._clock()
+        f = self._current(now)
         start = f.stream.tell()
         channel_id = self._channel(f, topic, type(msg))  # may close a full chunk (schema/channel records)
         data = msg.model_dump_json().encode()
@@ -193,12 +198,7 @@ class RotatingMcapWriter:
         """Add one already-encoded message on channel ``topic`` with ``schema`` = (name, encoding, data), e.g. the
         Foxglove scene channels (``foxglove.SceneUpdate``, ``protobuf``); chunking and rotation as :meth:`write`."""
         now = self._clock()
-        f = self._file
-        if f is not None and self._duration_due(f, now):
-            self.finish()
-            f = None
-        if f is None:
-            f = self._file = self._open(now)
+        f = self._current(now)
         start = f.stream.tell()
         channel_id = self._raw_channel(f, topic, schema, message_encoding)
         self.raw_written += 1

@@ -77,7 +77,7 @@ class TerrainNavSettings(ServiceSettings):
 
     model_config = SettingsConfigDict(env_prefix="FIXSTREAM_TERRAIN_NAV_", extra="ignore", env_nested_delimiter="__")
 
-    vehicle: str | None = Field(default=None, description="vehicle id in the keys (default: the instance name)")
+    vehicle: keys.Chunk | None = Field(default=None, description="vehicle id in the keys (default: the instance name)")
     map_path: str = Field(min_length=1, description="reference map: .npy with a .json sidecar, or a GeoTIFF")
     map_cell_m: float | None = Field(default=None, gt=0.0, description="block-average the map to this cell, m")
     map_x_axis: Literal["north", "east"] = Field(default="north", description="GeoTIFF: map x along north or east")
@@ -96,11 +96,6 @@ class TerrainNavSettings(ServiceSettings):
     @classmethod
     def _chunk_or_star(cls, v: str) -> str:
         return _sensor_chunk(v)
-
-    @field_validator("vehicle")
-    @classmethod
-    def _vehicle_chunk(cls, v: str | None) -> str | None:
-        return None if v is None else keys.chunk(v)
 
 
 class ReorderBuffer:
