@@ -4,15 +4,31 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: install demo test lint typecheck unit bench schemas tools clean
+LOCK   := requirements.lock
+UV     := $(VENV)-tools/bin/uv
 
-$(STAMP): pyproject.toml
+.PHONY: install demo test lint typecheck unit bench schemas tools clean lock
+
+# The install is the lock file's exact versions, every file checked against its hash, then the project itself
+# (editable, no dependency resolution, built with the locked setuptools). `make lock` refreshes the lock.
+$(STAMP): pyproject.toml $(LOCK)
+	rm -rf $(VENV)
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[dev]'
+	$(PY) -m pip install -q --require-hashes --no-deps -r $(LOCK)
+	$(PY) -m pip install -q --no-deps --no-build-isolation -e .
+	$(PY) -m pip check
 	touch $(STAMP)
 
 install: $(STAMP)
+
+# Re-resolve every dependency (pyproject.toml's, dev extras and the build backend) to the newest versions that
+# fit, for every Python from 3.11 on, with the hashes of every file of each version. uv lives in its own venv
+# so that it is not part of the locked program.
+lock:
+	test -x $(UV) || { $(PYTHON) -m venv $(VENV)-tools && $(VENV)-tools/bin/pip install -q uv==0.13.9; }
+	printf 'setuptools>=77\nwheel\n' | $(UV) pip compile pyproject.toml - --extra dev --generate-hashes \
+	  --universal --fork-strategy fewest --python-version 3.11 --no-header -q -o $(LOCK)
+	@echo "wrote $(LOCK); run make install (or make test) to use it"
 
 # System tools the tests use: a real compose implementation to validate compose.yaml (no engine needed), and
 # Debian's chromium to render the report headless.
@@ -50,4 +66,4 @@ schemas: install
 	$(PY) -m schemas.export
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) $(VENV)-tools build *.egg-info .pytest_cache .mypy_cache .ruff_cache

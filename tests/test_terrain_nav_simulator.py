@@ -20,9 +20,9 @@ from services.player.sensor_stats import sensor_stats
 from services.player.timeline import SimulationError, build, scenario_events
 from services.terrain_nav import mc
 from services.terrain_nav.mapfiles import write_maps
-from services.terrain_nav.maps import load_npy
+from services.terrain_nav.maps import ReferenceMap, load_npy
 from services.terrain_nav.simulation import simulate
-from services.terrain_nav.simulator import TerrainFlightParams, generated_world
+from services.terrain_nav.simulator import TerrainFlightParams, check_same_map, generated_world
 from shared import keys, montecarlo
 
 SHIPPED = sorted(p for p in scenario_files(REPO / "scenarios") if p.name.startswith("terrain_nav_"))
@@ -54,12 +54,24 @@ def test_the_shipped_scenarios_cover_the_issue_and_name_their_estimator() -> Non
     assert terrain_scenario("demo").duration_s <= 60.0
 
 
+def _assert_same_map(a: ReferenceMap, b: ReferenceMap, where: str) -> None:
+    """Same grid and voids, heights within MAP_TOLERANCE_M, map statistics within 1e-9 relative.
+
+    A regenerated map is not bit-identical across machines and library builds (BLAS, libm and the FFT differ in
+    the last bits: D1_m2 159.56307988251194 vs ...191 seen on a fresh install), so the check is the simulator's
+    own tolerance: 1 µm of height is six orders of magnitude below the smallest error the model simulates (the
+    altimeter's σ_v = 2 m, the map error σ_map) and cannot change a correlation decision."""
+    check_same_map(a, b, where)
+    for name in ("D1_m2", "sigma_t2_m2"):
+        assert math.isclose(getattr(a, name), getattr(b, name), rel_tol=1e-9), (where, name)
+
+
 def test_map_files_are_the_generated_maps_and_can_be_rewritten(tmp_path: Path) -> None:
     for name in ("informative", "periodic"):
         p = _params(name)
         assert p.terrain_seed is not None and p.map_file is not None
         shipped = load_npy(REPO / p.map_file)
-        assert np.array_equal(shipped.dem, generated_world(p, p.terrain_seed).ref_map.dem)
+        _assert_same_map(shipped, generated_world(p, p.terrain_seed).ref_map, p.map_file)
     doc = yaml.safe_load((REPO / "scenarios" / "terrain_nav_ridge_z.yaml").read_text())
     doc["simulators"][0]["params"]["map_file"] = str(tmp_path / "maps" / "rz.npy")
     path = tmp_path / "rz.yaml"
@@ -67,7 +79,7 @@ def test_map_files_are_the_generated_maps_and_can_be_rewritten(tmp_path: Path) -
     assert write_maps([path]) == [tmp_path / "maps" / "rz.npy"]
     shipped = _params("ridge_z").map_file
     assert shipped is not None
-    assert np.array_equal(load_npy(tmp_path / "maps" / "rz.npy").dem, load_npy(REPO / shipped).dem)
+    _assert_same_map(load_npy(tmp_path / "maps" / "rz.npy"), load_npy(REPO / shipped), shipped)
     build(load_scenario(path), 0)
 
 
