@@ -457,7 +457,8 @@ class Service:
 
     def _answer_status(self, query: zenoh.Query) -> None:
         body = json.dumps(self.status(), default=str).encode()
-        query.reply(query.key_expr, body, encoding=zenoh.Encoding.APPLICATION_JSON)
+        # on this service's own key, never the query's (a wildcard): replies on one key would be consolidated
+        query.reply(keys.status(self.name, self.instance), body, encoding=zenoh.Encoding.APPLICATION_JSON)
 
     def _loop(self) -> None:
         next_idle = time.monotonic() + 0.2

@@ -14,8 +14,11 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
 
 import yaml
-from pydantic import BaseModel, BeforeValidator, Field
+from pydantic import BaseModel, BeforeValidator, Field, ValidationError
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+from .errors import SettingsError
+from .local_stack import default_connect
 
 
 def _split_list(value: Any) -> Any:
@@ -38,10 +41,19 @@ class ZenohSettings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="FIXSTREAM_ZENOH_", extra="ignore")
 
     mode: Literal["client", "peer", "router"] = "client"
-    connect: StrList = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    connect: StrList = Field(
+        default_factory=default_connect,
+        description="endpoints to connect to; default: the running local stack (fixstream up), else tcp/127.0.0.1:7447",
+    )
     listen: StrList = Field(default_factory=list)
     multicast_scouting: bool = False
     config_file: Path | None = Field(default=None, description="a zenoh JSON5 config used as the base")
+    connect_timeout_s: float = Field(
+        default=30.0,
+        ge=-1.0,
+        description="how long opening a session keeps retrying its connect endpoints, s (-1: forever, 0: one try);"
+        " once open, a session reconnects by itself whenever its router comes back",
+    )
 
 
 def _file_defaults() -> dict[str, Any]:
@@ -70,11 +82,42 @@ class ServiceSettings(BaseSettings):
 
     @classmethod
     def load(cls, **overrides: Any) -> ServiceSettings:
-        """File defaults < environment < explicit overrides."""
-        file_data = {k: v for k, v in _file_defaults().items() if k in cls.model_fields}
-        env_view = cls()  # environment (and defaults)
-        merged = {**file_data, **env_view.model_dump(exclude_unset=True), **overrides}
-        return cls(**merged)
+        """File defaults < environment < explicit overrides; a missing or invalid setting raises
+        :class:`SettingsError` naming its environment variable."""
+        try:
+            file_data = {k: v for k, v in _file_defaults().items() if k in cls.model_fields}
+            env_view = cls()  # environment (and defaults)
+            merged = {**file_data, **env_view.model_dump(exclude_unset=True), **overrides}
+            return cls(**merged)
+        except ValidationError as exc:
+            raise SettingsError(settings_error_message(exc)) from None
+
+
+def _settings_classes(root: type[BaseSettings] = BaseSettings) -> dict[str, type[BaseSettings]]:
+    found: dict[str, type[BaseSettings]] = {}
+    for sub in root.__subclasses__():
+        found[sub.__name__] = sub
+        found.update(_settings_classes(sub))
+    return found
+
+
+def env_var_of(cls: type[BaseSettings], loc: tuple[int | str, ...]) -> str:
+    """The environment variable that sets the field at ``loc`` of settings class ``cls``."""
+    prefix = str(cls.model_config.get("env_prefix") or "")
+    delimiter = str(cls.model_config.get("env_nested_delimiter") or "__")
+    return (prefix + delimiter.join(str(part) for part in loc)).upper()
+
+
+def settings_error_message(exc: ValidationError) -> str:
+    """One line for a settings validation error: each bad field as its environment variable and the problem."""
+    cls = _settings_classes().get(exc.title)
+    parts = []
+    for err in exc.errors(include_url=False):
+        loc = tuple(err.get("loc", ()))
+        name = env_var_of(cls, loc) if cls is not None and loc else ".".join(map(str, loc)) or exc.title
+        problem = "missing (required)" if err.get("type") == "missing" else str(err.get("msg"))
+        parts.append(f"{name}: {problem}")
+    return f"invalid settings ({exc.title}): " + "; ".join(parts)
 
 
 ConfigT = TypeVar("ConfigT", bound=BaseModel)
