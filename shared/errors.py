@@ -19,7 +19,3 @@ class StartupError(RuntimeError):
 
 class ConnectError(StartupError):
     """No Zenoh router answered on the configured endpoints within the connect timeout."""
-
-
-class SettingsError(StartupError):
-    """A required setting is missing or a setting is invalid; the message names the environment variable."""

@@ -17,7 +17,6 @@ import yaml
 from pydantic import BaseModel, BeforeValidator, Field, ValidationError
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
-from .errors import SettingsError
 from .local_stack import default_connect
 
 
@@ -73,6 +72,22 @@ class ServiceSettings(BaseSettings):
 
     instance: str = Field(default="default", description="instance name, the last chunk of its keys")
     queue_size: int = Field(default=100_000, ge=1, description="inbound samples held before back-pressure")
+    queue_max_bytes: int = Field(
+        default=256 << 20, ge=1 << 16, description="inbound payload bytes held before back-pressure, bytes"
+    )
+    max_payload_bytes: int = Field(
+        default=1 << 20,
+        ge=1 << 10,
+        le=4 << 20,
+        description="a larger payload is refused unread (payload_too_large), bytes",
+    )
+    enqueue_block_s: float = Field(
+        default=1.0,
+        ge=0.0,
+        le=5.0,
+        description="longest a full queue holds Zenoh's delivery thread (slowing blocking publishers) before samples"
+        " are dropped and counted (queue_full); well below the session lease, so a busy service keeps its session, s",
+    )
     end_wait_s: float = Field(
         default=5.0,
         ge=0.0,
@@ -82,15 +97,13 @@ class ServiceSettings(BaseSettings):
 
     @classmethod
     def load(cls, **overrides: Any) -> ServiceSettings:
-        """File defaults < environment < explicit overrides; a missing or invalid setting raises
-        :class:`SettingsError` naming its environment variable."""
-        try:
-            file_data = {k: v for k, v in _file_defaults().items() if k in cls.model_fields}
-            env_view = cls()  # environment (and defaults)
-            merged = {**file_data, **env_view.model_dump(exclude_unset=True), **overrides}
-            return cls(**merged)
-        except ValidationError as exc:
-            raise SettingsError(settings_error_message(exc)) from None
+        """File defaults < environment < explicit overrides. A missing or invalid setting raises pydantic's
+        ValidationError; the command line turns it into one line naming the environment variable
+        (:func:`settings_error_message`)."""
+        file_data = {k: v for k, v in _file_defaults().items() if k in cls.model_fields}
+        env_view = cls()  # environment (and defaults)
+        merged = {**file_data, **env_view.model_dump(exclude_unset=True), **overrides}
+        return cls(**merged)
 
 
 def _settings_classes(root: type[BaseSettings] = BaseSettings) -> dict[str, type[BaseSettings]]:
