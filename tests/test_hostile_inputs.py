@@ -16,13 +16,9 @@ The default profile runs a few dozen examples per service; ``HYPOTHESIS_PROFILE=
 
 from __future__ import annotations
 
-import contextlib
-import importlib
 import math
 import os
-from collections.abc import Iterator
 from functools import cache
-from pathlib import Path
 from typing import Any
 
 import msgpack
@@ -31,14 +27,13 @@ from conftest import REPO
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from schema_strategy import message_dicts
-from stack_support import delivered, framed, scenario_feed, without_source_seq
+from stack_support import build_composed, delivered, framed, scenario_feed, without_source_seq
 
 from schemas import MODELS, Diagnostic, Header, Message, ScenarioMarker
 from schemas.base import MAX_STAMP_NS
 from services.player.scenario import load_scenario
 from shared import codec, keys
 from shared.service import Service
-from shared.stack import load_compose
 
 settings.register_profile(
     "hostile-default",
@@ -60,27 +55,8 @@ SERVICES: dict[str, tuple[str, str]] = {
 }
 
 
-@contextlib.contextmanager
-def _composed_env(compose_service: str) -> Iterator[None]:
-    """This process's environment replaced by the compose service's, working directory the repository."""
-    saved, cwd = dict(os.environ), Path.cwd()
-    env = load_compose(REPO / "compose.yaml", environ={"PATH": os.environ.get("PATH", "")}).services[compose_service]
-    os.environ.clear()
-    os.environ.update({k: v for k, v in saved.items() if not k.startswith("FIXSTREAM_")})
-    os.environ.update({k: v for k, v in env.environment.items() if v is not None})
-    os.chdir(REPO)
-    try:
-        yield
-    finally:
-        os.environ.clear()
-        os.environ.update(saved)
-        os.chdir(cwd)
-
-
 def build(name: str) -> Service:
-    with _composed_env(SERVICES[name][0]):
-        svc: Service = importlib.import_module(f"services.{name}.service").build()  # type: ignore[attr-defined]
-    return svc
+    return build_composed(SERVICES[name][0], name)
 
 
 @cache
