@@ -57,6 +57,7 @@ class FlightScenario(BaseModel):
     cell_m: float = 125.0
     margin_cells: int = 48
     H: float = 0.6
+    corr_cells: float | None = None
     rms_inc_m: float = 12.0
     flat_rms_inc_m: float = 0.3
     periodic_amp_m: float = 40.0
@@ -145,6 +146,7 @@ def make_world(sc: FlightScenario, rng: np.random.Generator) -> World:
         flat_rms_inc_m=sc.flat_rms_inc_m,
         periodic_amp_m=sc.periodic_amp_m,
         periodic_cells=sc.periodic_cells,
+        corr_cells=sc.corr_cells,
     )
     dem = truth[m : m + n_i, m : m + n_j] + rng.normal(0.0, sc.sigma_map_m, (n_i, n_j))
     return World(truth=truth, margin=m, ref_map=ReferenceMap(dem=dem, x0_m=0.0, z0_m=0.0, cell_m=sc.cell_m))

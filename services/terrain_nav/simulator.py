@@ -135,6 +135,9 @@ class TerrainFlightParams(SimParams):
     cell_m: float = Field(default=125.0, gt=0.0, le=10_000.0, description="map cell size, m")
     margin_cells: int = Field(default=48, ge=0, le=1000, description="truth terrain beyond the map edge, cells")
     hurst: float = Field(default=0.6, gt=0.0, lt=1.0, description="Hurst exponent H of the fBm terrain")
+    correlation_cells: float | None = Field(
+        default=None, gt=0.0, le=1e5, description="von Karman correlation length of the terrain, cells (null: fBm)"
+    )
     rms_increment_m: float = Field(default=12.0, ge=0.0, le=1000.0, description="RMS adjacent-cell height change, m")
     flat_rms_increment_m: float = Field(default=0.3, ge=0.0, le=1000.0, description="the same for 'flat', m")
     periodic_amplitude_m: float = Field(default=40.0, ge=0.0, le=1000.0, description="'periodic' amplitude, m")
@@ -218,6 +221,7 @@ class TerrainFlightParams(SimParams):
             cell_m=self.cell_m,
             margin_cells=self.margin_cells,
             H=self.hurst,
+            corr_cells=self.correlation_cells,
             rms_inc_m=self.rms_increment_m,
             flat_rms_inc_m=self.flat_rms_increment_m,
             periodic_amp_m=self.periodic_amplitude_m,
