@@ -20,6 +20,7 @@ and a turning flight (waypoints). Two presets: ``paper`` (the digest's §6) and 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import time
@@ -32,30 +33,13 @@ from scipy.stats import beta
 from schemas.terrain_nav import TerrainFix
 from services.terrain_nav.config import TerrainNavConfig
 from services.terrain_nav.core import TerrainNavigator
-from services.terrain_nav.maps import ReferenceMap
 from services.terrain_nav.paths import MapWaypoint, waypoint_path
 from services.terrain_nav.posterior import exact_posterior
-from services.terrain_nav.simulation import FlightScenario, World, make_world, simulate_flight
-from services.terrain_nav.terrain import fbm_2d
+from services.terrain_nav.simulation import FlightScenario, make_world, simulate_flight
+from services.terrain_nav.worlds import coarse_partly_flat_world
 from shared.errors import InputRejected
 
 CHI2_2_95 = 5.991
-
-
-def coarse_partly_flat_world(seed: int, rng: np.random.Generator) -> World:
-    """200 x 101 cells of 2.4 km: mountains (fBm H 0.7, 100 m RMS adjacent change) for z beyond the middle, a
-    plain (1 m) before it, a 5-cell transition; the truth is the cell grid itself (bilinear), the DEM
-    truth + N(0, 5 m): what a coarse real DEM over a coast or a basin edge looks like to the algorithm."""
-    ni, nj, cell = 200, 101, 2400.0
-    a = fbm_2d((ni, nj), rng, 0.7, 100.0)
-    b = fbm_2d((ni, nj), rng, 0.7, 1.0)
-    x = (np.arange(nj) + 0.5) / nj
-    w = np.clip((x - 0.5) / 0.05 + 0.5, 0.0, 1.0)[None, :]
-    truth = a * w + b * (1.0 - w)
-    truth = truth - truth.min() + 100.0
-    dem = truth + rng.normal(0.0, 5.0, (ni, nj))
-    return World(truth=truth, margin=0, ref_map=ReferenceMap(dem=dem, cell_m=cell), truth_origin_m=(0.0, 0.0),
-                 truth_cell_m=cell)  # fmt: skip
 
 
 @dataclass
@@ -101,11 +85,13 @@ class Tally:
 
     def row(self) -> dict[str, Any]:
         ub = float(beta.ppf(0.975, self.false + 1, self.fixes - self.false)) if self.fixes > self.false else 1.0
+
         def nees(v: list[float]) -> dict[str, Any]:
             if not v:
                 return {"n": 0}
             a = np.asarray(v)
             return {"n": len(v), "mean": float(a.mean()), "in95": float(np.mean(a <= CHI2_2_95))}
+
         return {
             "runs": self.runs,
             "availability": self.available / max(self.runs, 1),
@@ -175,7 +161,8 @@ def score_run(flight, msgs, cfg: TerrainNavConfig, t: Tally, turn: bool) -> None
                 nees = float(err @ np.linalg.solve(np.array(m.cov_xz_m2), err))
                 win = nav.window.measq
                 if turn:
-                    heading = [math.atan2(q.z_mean - p.z_mean, q.x_mean - p.x_mean) for p, q in zip(win, list(win)[1:])]
+                    w = list(win)
+                    heading = [math.atan2(q.z_mean - p.z_mean, q.x_mean - p.x_mean) for p, q in itertools.pairwise(w)]
                     turning = bool(heading) and (max(heading) - min(heading)) > math.radians(10.0)
                 else:
                     turning = False
@@ -202,7 +189,9 @@ def score_run(flight, msgs, cfg: TerrainNavConfig, t: Tally, turn: bool) -> None
     t.runs_false += nf > 0
     t.over_1_5 += sum(e > 1.5 for e in errs)
     t.worst = max([t.worst, *errs])
-    if first_fix is not None and first_fix - flight.t0_s <= 40.0 * (flight.cell_m / 125.0 if flight.cell_m > 125.0 else 1.0):
+    if first_fix is not None and first_fix - flight.t0_s <= 40.0 * (
+        flight.cell_m / 125.0 if flight.cell_m > 125.0 else 1.0
+    ):
         t.available += 1
 
 
@@ -223,7 +212,8 @@ def main(argv: list[str] | None = None) -> int:
             print(
                 f"{fam.name:28s} {preset:7s} avail {row['availability']:.3f} fixes {row['fixes']:5d} "
                 f"false {row['false_fixes']:3d} (ub95 {row['false_rate_ub95']:.4f}, runs {row['runs_with_false']}, "
-                f">1.5 {row['over_1_5_cells']}, worst {row['worst_cells']:.2f}) post ok {row['posterior_decisive_correct']:.3f} "
+                f">1.5 {row['over_1_5_cells']}, worst {row['worst_cells']:.2f}) "
+                f"post ok {row['posterior_decisive_correct']:.3f} "
                 f"wrong {row['posterior_decisive_wrong']:.3f} taken {row['fix_when_posterior_decisive']:.3f} "
                 f"NEES s {row['nees_straight']} t {row['nees_turn']} vert {row['vertical_within_3sigma']:.3f} "
                 f"[{time.time() - t0:.0f}s]",

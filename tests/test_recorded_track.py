@@ -74,7 +74,9 @@ def test_geodetic_rows_convert_exactly_to_the_local_frame(tmp_path: Path) -> Non
     np.testing.assert_allclose(enu_independent(geo[:, 0], geo[:, 1], geo[:, 2], ORIGIN), enu, atol=1e-3)
     np.testing.assert_allclose(frame.to_enu(geo[:, 0], geo[:, 1], geo[:, 2]), enu, atol=1e-6)
     # a level flight 30 km east of the origin is below the origin's tangent plane by about d^2/(2R) = 70 m
-    level = frame.to_enu(np.array([45.0]), np.array([7.0 + 30e3 / (A_M * math.cos(math.radians(45.0)) * math.pi / 180)]), np.array([0.0]))
+    level = frame.to_enu(
+        np.array([45.0]), np.array([7.0 + 30e3 / (A_M * math.cos(math.radians(45.0)) * math.pi / 180)]), np.array([0.0])
+    )
     assert level[0, 2] == pytest.approx(-(30e3**2) / (2 * 6.38e6), rel=0.02)
 
 
@@ -83,7 +85,9 @@ def test_exact_rows_are_reproduced_and_velocity_is_the_spline_derivative(tmp_pat
     t = np.arange(0.0, 130.0, 0.5)
     truth = traj.states(t)
     geo = LocalFrame(ORIGIN).to_geodetic(truth.position_m)
-    path = write_track_csv(tmp_path / "t.csv", t + 1000.0, {"lat_deg": geo[:, 0], "lon_deg": geo[:, 1], "alt_m": geo[:, 2]})
+    path = write_track_csv(
+        tmp_path / "t.csv", t + 1000.0, {"lat_deg": geo[:, 0], "lon_deg": geo[:, 1], "alt_m": geo[:, 2]}
+    )
     track = RecordedTrack.load(TrackFileParams(path=str(path), origin=ORIGIN, smoothing="none", time_offset_s=5.0))
     assert track.start_s == 5.0 and track.end_s == pytest.approx(134.5)
     s = track.states(t + 5.0)
@@ -107,7 +111,7 @@ def test_noisy_gnss_track_is_smoothed_to_an_honest_velocity() -> None:
     axis; the smoothed track must stay under 1 m/s RMS per horizontal axis (measured ~0.5 m/s) and its
     position under the 2 m noise (measured ~0.8 m), and the turn rate in the turn within 0.5 deg/s of 3.
     """
-    track = RecordedTrack.load(TrackFileParams(path=str(EXAMPLE)))
+    track = RecordedTrack.load(TrackFileParams(path=str(EXAMPLE), origin=ORIGIN))
     traj = s_turn()
     tt = np.arange(2.0, 128.0, 0.1)
     s, ref = track.states(tt), traj.states(tt)
@@ -128,7 +132,9 @@ def test_parquet_and_iso_times_read_as_the_csv(tmp_path: Path) -> None:
 
     t = np.arange(0.0, 20.0, 1.0)
     east, north = 100.0 * t, 50.0 * t
-    csv_path = write_track_csv(tmp_path / "l.csv", t, {"east_m": east, "north_m": north, "up_m": np.full(t.size, 300.0)})
+    csv_path = write_track_csv(
+        tmp_path / "l.csv", t, {"east_m": east, "north_m": north, "up_m": np.full(t.size, 300.0)}
+    )
     stamps = np.datetime64("2024-05-01T12:00:00", "ns") + (t * 1e9).astype("timedelta64[ns]")
     pq.write_table(
         pa.table({"time": pa.array(stamps), "east_m": east, "north_m": north, "up_m": np.full(t.size, 300.0)}),
@@ -140,7 +146,9 @@ def test_parquet_and_iso_times_read_as_the_csv(tmp_path: Path) -> None:
     np.testing.assert_allclose(a.states(tt).position_m, b.states(tt).position_m, atol=1e-9)
     np.testing.assert_allclose(b.states(tt).velocity_mps, np.tile([100.0, 50.0, 0.0], (tt.size, 1)), atol=1e-9)
     iso = tmp_path / "iso.csv"
-    iso.write_text("t_s,east_m,north_m\n2024-05-01T12:00:00,0,0\n2024-05-01T12:00:10,1000,0\n2024-05-01T12:00:20,2000,0\n")
+    iso.write_text(
+        "t_s,east_m,north_m\n2024-05-01T12:00:00,0,0\n2024-05-01T12:00:10,1000,0\n2024-05-01T12:00:20,2000,0\n"
+    )
     c = RecordedTrack.load(TrackFileParams(path=str(iso), smoothing="none"))
     assert c.end_s == 20.0 and c.states(np.array([5.0])).velocity_mps[0, 0] == pytest.approx(100.0)
 
@@ -167,7 +175,9 @@ def test_bad_track_files_are_refused_with_the_reason(tmp_path: Path) -> None:
     climb=st.floats(-20.0, 20.0),
     dt=st.floats(0.1, 5.0),
 )
-def test_a_straight_track_gives_its_own_velocity_and_heading(heading: float, speed: float, climb: float, dt: float) -> None:
+def test_a_straight_track_gives_its_own_velocity_and_heading(
+    heading: float, speed: float, climb: float, dt: float
+) -> None:
     """Property: for any straight, constant-velocity local track, both fits return the exact velocity and the
     heading atan2(v_e, v_n); the smoothing spline of exactly linear data is that line (GCV or not)."""
     t = np.arange(12) * dt

@@ -17,7 +17,7 @@ PRESETS: dict[str, dict[str, Any]] = {
     "paper": {},
     # the paper's algorithm with the correction of docs/terrain_nav.md ("False fixes on coarse and partly
     # flat maps"): C3's near-minimum region floored at the residual level the model expects
-    "robust": {"c3_floor": True},
+    "robust": {"c3_floor": 0.5},
 }
 
 
@@ -70,10 +70,13 @@ class TerrainNavConfig(BaseModel):
     )
     R_thr: float = Field(default=1.0, ge=0.0, description="C4 threshold on the argmin extent, cells [R]")
     R_strict: bool = Field(default=True, description="C4 as R_min < R_thr (True) or <= (False) [R]")
-    c3_floor: bool = Field(
-        default=False,
-        description="C3 region F <= F_min + mu3*max(F_min, sum of the window's expected e^2 S_k) instead of "
-        "F <= F_min*(1+mu3): a minimum that fits better than the noise cannot shrink the region [robust]",
+    c3_floor: float | None = Field(
+        default=None,
+        gt=0.0,
+        le=1.0,
+        description="C3 region F <= F_min + mu3*max(F_min, c3_floor * sum of the window's expected e^2 S_k) "
+        "instead of F <= F_min*(1+mu3): a minimum that fits far better than the noise the model expects cannot "
+        "shrink the region below that noise (None: the paper's form) [robust]",
     )
 
     # --- vertical Kalman filter (§1.4, §1.7, §2.2) -----------------------------------------------------

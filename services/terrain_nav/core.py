@@ -335,8 +335,8 @@ class TerrainNavigator:
             hist.popleft()
         c1 = cond.c1_enough_data(n_valid, self.N_min, cfg.c1_strict)
         c2 = cond.c2_fit(F_min, n_valid, cfg.mu_F, self.L_zk)
-        if cfg.c3_floor:
-            expected = sum(m.s_expected for m in self.window.measq)
+        if cfg.c3_floor is not None:
+            expected = cfg.c3_floor * sum(m.s_expected for m in self.window.measq)
             D = cond.d_max(F, a, b, cfg.mu3, F_min, floor=expected)
         else:
             D = cond.d_max(F, a, b, cfg.mu3, F_min)

@@ -171,8 +171,8 @@ def informative_line(
 ) -> tuple[tuple[int, int], float]:
     """Start cell and heading (deg) of the default straight flight over a DEM file.
 
-    Lines through the 40 roughest zone cells (local D1, :func:`local_roughness`) in every heading (step
-    ``heading_step_deg``) are walked in half-cell steps while they stay in the zone shrunk by
+    Lines through the 16 roughest zone cells (local D1, :func:`local_roughness`) in every heading (step
+    ``heading_step_deg``) are walked in one-cell steps while they stay in the zone shrunk by
     ``margin_cells`` (room for the INS offset); the score is the sum of the local D1 over the first
     ``length_cells`` cells of the line. The best line's start (the end of its walk backwards from the
     centre, or the point ``length_cells / 2`` before the centre) and heading are returned.
@@ -187,12 +187,12 @@ def informative_line(
     if not inner.any():
         inner = zone
     score_map = np.where(inner & np.isfinite(rough), rough, -np.inf)
-    flat = np.argsort(score_map, axis=None)[::-1][:40]
+    flat = np.argsort(score_map, axis=None)[::-1][:16]
     centres = [divmod(int(k), zone.shape[1]) for k in flat if np.isfinite(score_map.flat[int(k)])]
     if not centres:
         raise ValueError("the map has no informative zone cell to fly over")
     best: tuple[float, tuple[int, int], float] | None = None
-    step = 0.5
+    step = 1.0
     n_half = int(length_cells / step)
     for ci, cj in centres:
         for hd in np.arange(0.0, 360.0, heading_step_deg):
