@@ -26,7 +26,7 @@ install: $(STAMP)
 # so that it is not part of the locked program.
 lock:
 	test -x $(UV) || { $(PYTHON) -m venv $(VENV)-tools && $(VENV)-tools/bin/pip install -q uv==0.13.9; }
-	printf 'setuptools>=77\nwheel\n' | $(UV) pip compile pyproject.toml - --extra dev --generate-hashes \
+	printf 'setuptools>=77\nwheel\n' | $(UV) pip compile pyproject.toml - --extra dev --extra parquet --generate-hashes \
 	  --universal --fork-strategy fewest --python-version 3.11 --no-header -q -o $(LOCK)
 	@echo "wrote $(LOCK); run make install (or make test) to use it"
 

@@ -85,9 +85,27 @@ def raw(key: str, msg: Message) -> Raw:
     return key, codec.encode(msg), codec.encoding_of(type(msg))
 
 
+def announced(items: Iterable[Raw], source: str) -> Counter[str]:
+    """Per data key, the items a player publishing as ``source`` announces in its end marker: those whose header
+    names ``source``, a repeat of its last seq on the key aside (the service base counts exactly these)."""
+    published: Counter[str] = Counter()
+    last_seq: dict[str, int] = {}
+    for key, payload, _ in items:
+        header = codec.peek_header(payload)
+        if key.startswith(f"{keys.ROOT}/scenario/") or header is None or header[0] != source:
+            continue  # a marker, nobody's payload, or another publisher's
+        if last_seq.get(key) == header[1]:
+            continue  # a repeat of the player's last message on the key
+        last_seq[key] = header[1]
+        published[key] += 1
+    return published
+
+
 def with_end_marker(scenario: Scenario, items: list[Raw], last_stamp_ns: int) -> list[Raw]:
-    """The items and, last, the player's end marker counting them per key (bad items included)."""
-    published = Counter(key for key, _, _ in items)
+    """The items and, last, the player's end marker counting per key the items that are the player's: those whose
+    header names the player's source (the service base counts only these; a payload that does not even unpack, or
+    comes from another source, is nobody's and cannot end or extend the player's run)."""
+    published = announced(items, marker(scenario, scenario.seed, "end", 0, 1).header.source)
     end = marker(scenario, scenario.seed, "end", last_stamp_ns, 1, published=dict(published))
     return [*items, (keys.scenario(scenario.name), codec.encode(end), codec.encoding_of(ScenarioMarker))]
 

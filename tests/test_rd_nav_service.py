@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import pytest
 from conftest import REPO
-from stack_support import Raw, delivered, framed, offline_on_bytes, on_key, raw, without_source_seq
+from stack_support import Raw, announced, delivered, framed, offline_on_bytes, on_key, raw, without_source_seq
 
 from schemas import (
     AcousticArrival,
@@ -229,10 +229,10 @@ def bad_items(feed: list[tuple[str, Message]]) -> tuple[list[Raw], Counter[str],
         if i == i_next:
             items.append(raw(MODEM, msg))  # the same LEADER packet twice: its cycle is open
             expected["duplicate"] += 1
-    # the end marker counts what was published per key (bad items included), as the player's does: a service ends
-    # the run only once all of it has arrived
-    published = Counter(k for k, _, _ in items if not k.startswith("fixstream/scenario/"))
-    end = feed[-1][1].model_copy(update={"published": dict(published)})
+    # the end marker counts the player's own messages per key, as the player's does: a service ends the run only
+    # once all of them have arrived (bad payloads with no header of the player's count for nobody)
+    end = feed[-1][1]
+    end = end.model_copy(update={"published": dict(announced(items, end.header.source))})
     items.append(raw(feed[-1][0], end))
     return items, expected, step_at
 

@@ -219,31 +219,63 @@ def test_geotiff_is_block_averaged_and_oriented_along_x(tmp_path) -> None:  # ty
     east = load_geotiff(path, cell_m=125.0, x_axis="east")
     assert east.dem.shape == (12, 20) and east.x0_m == pytest.approx(west)
     assert east.dem[3, 2] == pytest.approx(ref.dem[2, 3])
-    with pytest.raises(ValueError, match="integer multiple"):
-        load_geotiff(path, cell_m=100.0)
+    # a cell size the pixels do not divide: resampled (rasterio average) in the raster's own CRS, same area
+    hundred = load_geotiff(path, cell_m=100.0)
+    assert hundred.cell_m == 100.0 and hundred.crs == "EPSG:32637"
+    assert hundred.x0_m % 100.0 == 0.0 and hundred.z0_m % 100.0 == 0.0
+    # the mean height over the raster's area is kept: the cells are area means of N(800, 40) pixels, so the
+    # grand means agree to a few standard errors (40/sqrt(3839 pixels) = 0.65 m; cut edge cells add a bit)
+    assert float(np.nanmean(hundred.dem)) == pytest.approx(float(np.mean(data[data > -9000])), abs=3.0)
 
 
-def test_geotiff_in_geographic_crs_is_refused(tmp_path) -> None:  # type: ignore[no-untyped-def]
+def test_geotiff_in_geographic_crs_is_reprojected_to_square_cells(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """A DEM in EPSG:4326 (non-square metric pixels at 56 N) is reprojected to 125 m cells of a local TM projection.
+
+    Independent check: the heights are a linear function of latitude and longitude, so the area mean over a
+    cell equals the function at the cell's centre (converted back to lat/lon with pyproj) up to the pixel
+    quantisation, |gradient| * half a pixel diagonal: 2000 m/deg * 0.0005 deg * 0.71 = 0.7 m.
+    """
     import rasterio
     from affine import Affine
+    from pyproj import Transformer
 
     from services.terrain_nav.maps import load_geotiff
 
+    rows, cols, px = 240, 320, 0.0005  # 0.0005 deg = 55.6 m north-south, 31.1 m east-west at 56 N
+    lat_n, lon_w = 56.1, 37.0
+    lat = lat_n - (np.arange(rows) + 0.5) * px
+    lon = lon_w + (np.arange(cols) + 0.5) * px
+    height = 150.0 + 2000.0 * (lat[:, None] - 56.0) + 1000.0 * (lon[None, :] - 37.0)
     path = tmp_path / "geo.tif"
     with rasterio.open(
-        path,
-        "w",
-        driver="GTiff",
-        height=8,
-        width=8,
-        count=1,
-        dtype="float32",
-        crs="EPSG:4326",
-        transform=Affine(0.001, 0.0, 37.0, 0.0, -0.001, 56.0),
-    ) as dst:
-        dst.write(np.zeros((8, 8), np.float32), 1)
-    with pytest.raises(ValueError, match="not projected"):
-        load_geotiff(path, cell_m=0.004)
+        path, "w", driver="GTiff", height=rows, width=cols, count=1, dtype="float64", crs="EPSG:4326",
+        transform=Affine(px, 0.0, lon_w, 0.0, -px, lat_n), nodata=-9999.0,
+    ) as dst:  # fmt: skip
+        dst.write(height, 1)
+    ref = load_geotiff(path, cell_m=125.0)
+    assert ref.cell_m == 125.0 and "+proj=tmerc" in ref.crs and ref.x_axis == "north"
+    # the extent: 0.12 deg of latitude = 13.4 km -> about 107 cells; 0.16 deg of longitude = 9.95 km -> ~80
+    assert 106 <= ref.shape[0] <= 110 and 79 <= ref.shape[1] <= 83
+    to_geo = Transformer.from_crs(ref.crs, "EPSG:4326", always_xy=True)
+    inner = np.argwhere(~ref.void)
+    checked = 0
+    for I, J in inner[:: max(1, len(inner) // 300)]:  # noqa: E741 - cell indices
+        x, z = ref.centre_of(int(I), int(J))
+        # only cells whose whole area lies on the raster (edge cells are partial area means)
+        if not (ref.x0_m + 125.0 < x - 62.5 and z - 62.5 > ref.z0_m + 125.0):
+            continue
+        if x + 125.0 > ref.x0_m + (ref.shape[0] - 1) * 125.0 or z + 125.0 > ref.z0_m + (ref.shape[1] - 1) * 125.0:
+            continue
+        lo, la = to_geo.transform(z, x)
+        expected = 150.0 + 2000.0 * (la - 56.0) + 1000.0 * (lo - 37.0)
+        assert ref.dem[I, J] == pytest.approx(expected, abs=0.8), (I, J)
+        checked += 1
+    assert checked > 100
+    # a geodetic point goes to the map frame through the map's CRS (x = northing, z = easting)
+    to_map = Transformer.from_crs("EPSG:4326", ref.crs, always_xy=True)
+    e, n = to_map.transform(37.08, 56.05)
+    I, J = ref.cell_of(n, e)  # noqa: E741
+    assert 0 <= I < ref.shape[0] and 0 <= J < ref.shape[1] and not ref.void[I, J]
 
 
 # --- synthetic terrain (§4, §5.2) -------------------------------------------------------------------------------

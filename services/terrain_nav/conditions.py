@@ -35,10 +35,16 @@ def c2_fit(F_min: float, n_valid: int, mu_F: float, L_zk: float) -> bool:
     return n_valid > 0 and F_min / n_valid < mu_F * L_zk
 
 
-def d_max(F: F64, a: int, b: int, mu3: float, F_min: float | None = None) -> float:
-    """D_max: largest Euclidean distance (cells) from (a, b) to any cell with F <= F_min*(1+mu3)."""
+def d_max(F: F64, a: int, b: int, mu3: float, F_min: float | None = None, floor: float | None = None) -> float:
+    """D_max: largest Euclidean distance (cells) from (a, b) to any cell with F <= F_min*(1+mu3).
+
+    With ``floor`` (the sum of the window's expected e^2 at the true hypothesis, m^2) the region is
+    F <= F_min + mu3*max(F_min, floor): a minimum that fits better than the noise the model expects cannot
+    shrink the region below the noise scale (docs/terrain_nav.md, false fixes on coarse maps).
+    """
     fmin = float(F[a, b]) if F_min is None else F_min
-    ii, jj = np.nonzero(fmin * (1.0 + mu3) >= F)  # "<=" so the argmin itself always qualifies
+    bound = fmin * (1.0 + mu3) if floor is None else fmin + mu3 * max(fmin, floor)
+    ii, jj = np.nonzero(bound >= F)  # "<=" so the argmin itself always qualifies
     if ii.size == 0:
         return 0.0
     d2 = (ii - a) ** 2 + (jj - b) ** 2

@@ -7,15 +7,40 @@ Provenance tags in the descriptions: [P] stated in the paper, [R] reconstructed 
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+#: the values a preset gives to the parameters it sets (any of them can still be given explicitly)
+PRESETS: dict[str, dict[str, Any]] = {
+    # the digest's configuration (§6), every acceptance test of §4 is run with it
+    "paper": {},
+    # the paper's algorithm with the correction of docs/terrain_nav.md ("False fixes on coarse and partly
+    # flat maps"): C3's near-minimum region floored at the residual level the model expects
+    "robust": {"c3_floor": 0.5},
+}
+
 
 class TerrainNavConfig(BaseModel):
-    """Configuration of :class:`services.terrain_nav.core.TerrainNavigator` (and the base algorithm)."""
+    """Configuration of :class:`services.terrain_nav.core.TerrainNavigator` (and the base algorithm).
+
+    ``preset`` fills the parameters it names (``PRESETS``) unless they are given explicitly: ``paper`` (the
+    default) is the digest's configuration, ``robust`` adds the corrections against false fixes over
+    inhomogeneous (partly flat, coarse) maps.
+    """
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    preset: Literal["paper", "robust"] = Field(default="paper", description="paper (digest §6) or robust")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _apply_preset(cls, data: Any) -> Any:
+        if isinstance(data, dict):
+            preset = data.get("preset", "paper")
+            if preset in PRESETS:
+                return {**PRESETS[preset], **data}
+        return data
 
     # --- hypothesis grid (§2.1) -------------------------------------------------------------------------
     M_x: int = Field(default=25, ge=1, le=500, description="longitudinal search half-width, cells [D]")
@@ -45,6 +70,14 @@ class TerrainNavConfig(BaseModel):
     )
     R_thr: float = Field(default=1.0, ge=0.0, description="C4 threshold on the argmin extent, cells [R]")
     R_strict: bool = Field(default=True, description="C4 as R_min < R_thr (True) or <= (False) [R]")
+    c3_floor: float | None = Field(
+        default=None,
+        gt=0.0,
+        le=1.0,
+        description="C3 region F <= F_min + mu3*max(F_min, c3_floor * sum of the window's expected e^2 S_k) "
+        "instead of F <= F_min*(1+mu3): a minimum that fits far better than the noise the model expects cannot "
+        "shrink the region below that noise (None: the paper's form) [robust]",
+    )
 
     # --- vertical Kalman filter (§1.4, §1.7, §2.2) -----------------------------------------------------
     phi31: Literal["exact", "euler"] = Field(default="exact", description="row 3 of Phi: T^2/2 or 0 [R]")

@@ -312,8 +312,10 @@ class TerrainNavigator:
             else:
                 np.multiply(nu, nu, out=e2)
                 Sk = bank.update(nu, R)
+                m.s_expected = Sk
                 if cfg.normalize_by_S:
                     e2 *= R / Sk
+                    m.s_expected = R
                 window.push(e2, m)
             self.total_meas += 1
 
@@ -333,7 +335,11 @@ class TerrainNavigator:
             hist.popleft()
         c1 = cond.c1_enough_data(n_valid, self.N_min, cfg.c1_strict)
         c2 = cond.c2_fit(F_min, n_valid, cfg.mu_F, self.L_zk)
-        D = cond.d_max(F, a, b, cfg.mu3, F_min)
+        if cfg.c3_floor is not None:
+            expected = cfg.c3_floor * sum(m.s_expected for m in self.window.measq)
+            D = cond.d_max(F, a, b, cfg.mu3, F_min, floor=expected)
+        else:
+            D = cond.d_max(F, a, b, cfg.mu3, F_min)
         D_thr = cond.d_threshold(n_valid, self.N_min, self.N_max, cfg.mu1, cfg.mu2, cfg.phi)
         c3 = cond.c3_unique(D, D_thr)
         R = cond.r_min(hist, self.total_meas, cfg.N_R)

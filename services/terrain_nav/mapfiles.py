@@ -1,8 +1,9 @@
 """Write the reference-map files that scenario files name: ``python -m services.terrain_nav.mapfiles FILE.yaml ...``.
 
-For every ``terrain_nav`` simulator with a ``map_file`` (and so a fixed ``terrain_seed``), the generated DEM
-of its terrain is saved as ``<map_file>.npy`` with its JSON sidecar. The estimator service loads that file;
-the simulator checks it against the terrain it flies over.
+For every ``terrain_nav`` simulator on synthetic terrain with a ``map_file`` (and so a fixed
+``terrain_seed``), the generated DEM of its terrain is saved as ``<map_file>.npy`` with its JSON sidecar. The
+estimator service loads that file; the simulator checks it against the terrain it flies over. A simulator
+flying a ``terrain_file`` is skipped: its ``map_file`` is another DEM and is never overwritten.
 """
 
 from __future__ import annotations
@@ -26,8 +27,8 @@ def write_maps(scenario_paths: list[Path]) -> list[Path]:
             params = scenario.simulator_params(i)
             if spec.kind != KIND or not isinstance(params, TerrainFlightParams):
                 continue
-            if params.map_file is None or params.terrain_seed is None:
-                continue
+            if params.map_file is None or params.terrain_seed is None or params.terrain_file is not None:
+                continue  # a terrain_file scenario's map_file is another DEM: never overwritten
             target = resolve_map_path(params.map_file).with_suffix(".npy")
             target.parent.mkdir(parents=True, exist_ok=True)
             written.append(save_npy(generated_world(params, params.terrain_seed).ref_map, target))

@@ -1,8 +1,11 @@
 """Reference elevation maps (digest §1.6, §5.2): in-memory model, loaders and load-time statistics.
 
 * ``.npy`` with a JSON sidecar ``{x0, z0, cell, datum, nodata, axes}`` (:func:`load_npy`, :func:`save_npy`);
-* GeoTIFF through rasterio (optional dependency, :func:`load_geotiff`): square pixels in a projected CRS,
-  block-averaged to the cell size and oriented so that axis 0 points along +x.
+* GeoTIFF through rasterio (:func:`load_geotiff`) in **any CRS**: a raster with square pixels in a projected
+  CRS whose size divides the cell size is block-averaged (§1.6); any other raster (geographic CRS, rotated,
+  non-square or non-dividing pixels) is reprojected with rasterio/PROJ to square cells of ``cell_m`` in a
+  local transverse Mercator projection centred on the raster (see :func:`load_geotiff`). Axis 0 points along
+  +x (north by default).
 
 Precomputed at load: the void mask, D1 (mean-square adjacent-cell height change, m^2) and the terrain
 variance sigma_t^2 (m^2); the zone mask for a hypothesis half-width is computed on first use and cached.
@@ -35,6 +38,8 @@ class ReferenceMap:
     cell_m: float = 125.0
     datum: str = ""
     nodata: float | None = None
+    crs: str = ""  #: the projected CRS of the map frame (PROJ string or WKT); "" for a synthetic map
+    x_axis: Literal["north", "east"] = "north"  #: which CRS axis the map's x is (z is the other one)
     void: Bool = field(init=False)
     D1_m2: float = field(init=False)
     sigma_t2_m2: float = field(init=False)
@@ -132,6 +137,9 @@ def save_npy(ref: ReferenceMap, path: str | Path) -> Path:
         "nodata": nodata,
         "axes": ["x", "z"],
     }
+    if ref.crs:
+        meta["crs"] = ref.crs
+        meta["x_axis"] = ref.x_axis
     p.with_suffix(".json").write_text(json.dumps(meta, indent=2) + "\n")
     return p
 
@@ -159,8 +167,17 @@ def load_npy(path: str | Path, cell_m: float | None = None) -> ReferenceMap:
     if cell_m is not None and not math.isclose(cell_m, cell):
         dem = block_average(dem, _factor(cell_m, cell))
         cell = cell_m
+    x_axis = meta.get("x_axis", "north")
+    if x_axis not in ("north", "east"):
+        raise ValueError(f"x_axis must be 'north' or 'east', got {x_axis!r}")
     return ReferenceMap(
-        dem=dem, x0_m=float(meta["x0"]), z0_m=float(meta["z0"]), cell_m=cell, datum=str(meta.get("datum", ""))
+        dem=dem,
+        x0_m=float(meta["x0"]),
+        z0_m=float(meta["z0"]),
+        cell_m=cell,
+        datum=str(meta.get("datum", "")),
+        crs=str(meta.get("crs", "")),
+        x_axis=x_axis,
     )
 
 
@@ -175,38 +192,112 @@ def _factor(cell_m: float, pixel_m: float) -> int:
 # --- GeoTIFF (rasterio) ----------------------------------------------------------------------------------------
 
 
+def local_tm_crs(lat_deg: float, lon_deg: float) -> str:
+    """A transverse Mercator projection on WGS84 centred at (lat, lon), scale 1 on its central meridian (PROJ)."""
+    return f"+proj=tmerc +lat_0={lat_deg:.9f} +lon_0={lon_deg:.9f} +k=1 +x_0=0 +y_0=0 +ellps=WGS84 +units=m +no_defs"
+
+
+def _needs_reprojection(tr: object, crs: object, cell_m: float) -> bool:
+    a, b, d, e = tr.a, tr.b, tr.d, tr.e  # type: ignore[attr-defined]
+    if abs(b) > 0 or abs(d) > 0 or not math.isclose(abs(a), abs(e), rel_tol=1e-9):
+        return True
+    if crs is not None and not crs.is_projected:  # type: ignore[attr-defined]
+        return True
+    f = cell_m / abs(a)
+    return round(f) < 1 or abs(f - round(f)) > 1e-6 * max(1.0, f)
+
+
 def load_geotiff(
     path: str | Path, cell_m: float, x_axis: Literal["north", "east"] = "north", band: int = 1
 ) -> ReferenceMap:
-    """Load a single-band GeoTIFF in a projected CRS and block-average it to ``cell_m``.
+    """Load a single-band GeoTIFF in any CRS as a map of square ``cell_m`` cells.
+
+    * **Projected CRS, square unrotated pixels whose size divides** ``cell_m``: block averaging (§1.6), the
+      map frame is the raster's own CRS.
+    * **Anything else** is reprojected with ``rasterio.warp.reproject`` (PROJ) onto a north-up grid of
+      ``cell_m`` cells whose edges are multiples of ``cell_m``: in the raster's own CRS if it is projected (a
+      rotated or non-square raster, a pixel size that does not divide ``cell_m``), else (a geographic CRS
+      such as EPSG:4326) in a transverse Mercator projection on WGS84 centred on the raster's centre
+      (:func:`local_tm_crs`; scale error < 1e-4 within 90 km of the centre). Resampling is ``average`` (the
+      mean of the source pixels a cell covers, the block average's counterpart) when the source pixels are
+      finer than the cell, ``bilinear`` otherwise.
+      Source nodata and pixels outside the raster become voids. The map's ``crs`` is that projection, so
+      geodetic points (waypoints, tracks) convert to the map frame exactly with pyproj.
 
     ``x_axis="north"``: x = northing, z = easting (the Russian x-north, y-up, z-east frame);
-    ``x_axis="east"``: x = easting, z = northing. Pixels must be square and the raster not rotated.
+    ``x_axis="east"``: x = easting, z = northing.
     """
     import rasterio
 
     with rasterio.open(path) as src:
         tr = src.transform
-        if abs(tr.b) > 0 or abs(tr.d) > 0:
-            raise ValueError("rotated rasters are not supported: rotate upstream")
-        if not math.isclose(abs(tr.a), abs(tr.e), rel_tol=1e-9):
-            raise ValueError(f"pixels must be square, got {abs(tr.a)} x {abs(tr.e)}")
-        if src.crs is not None and not src.crs.is_projected:
-            raise ValueError(f"the raster CRS {src.crs} is not projected (metres needed)")
-        data = src.read(band, masked=True).astype(np.float64).filled(np.nan)
-        west, south, _east, _north = src.bounds
-        datum = src.crs.to_string() if src.crs is not None else ""
-    pixel = abs(tr.a)
-    if tr.e < 0:  # rows run north -> south: flip so that axis 0 increases northwards
+        src_crs = src.crs
+        if _needs_reprojection(tr, src_crs, cell_m):
+            data, x0w, y0s, crs_out = _reproject(src, band, cell_m, src_crs is not None and src_crs.is_projected)
+            pixel = cell_m
+            flip_rows, flip_cols = True, False
+        else:
+            data = src.read(band, masked=True).astype(np.float64).filled(np.nan)
+            x0w, y0s, _east, _north = src.bounds
+            crs_out = src_crs.to_string() if src_crs is not None else ""
+            pixel = abs(tr.a)
+            flip_rows, flip_cols = tr.e < 0, tr.a < 0
+        datum = src_crs.to_string() if src_crs is not None else ""
+    if flip_rows:  # rows run north -> south: flip so that axis 0 increases northwards
         data = data[::-1, :]
-    if tr.a < 0:
+    if flip_cols:
         data = data[:, ::-1]
     if x_axis == "north":
-        arr, x0, z0 = data, south, west
+        arr, x0, z0 = data, y0s, x0w
     else:
-        arr, x0, z0 = data.T, west, south
+        arr, x0, z0 = data.T, x0w, y0s
     arr = block_average(arr, _factor(cell_m, pixel))
-    return ReferenceMap(dem=arr, x0_m=float(x0), z0_m=float(z0), cell_m=float(cell_m), datum=datum)
+    return ReferenceMap(
+        dem=arr, x0_m=float(x0), z0_m=float(z0), cell_m=float(cell_m), datum=datum, crs=crs_out, x_axis=x_axis
+    )
+
+
+def _reproject(src: object, band: int, cell_m: float, keep_crs: bool) -> tuple[F64, float, float, str]:
+    """Reproject band ``band`` of an open rasterio dataset to a north-up grid of ``cell_m`` cells, in its own
+    (projected) CRS if ``keep_crs``, else in a local TM projection centred on the raster."""
+    from pyproj import CRS, Transformer
+    from rasterio.warp import Resampling, reproject, transform_bounds
+
+    if src.crs is None:  # type: ignore[attr-defined]
+        raise ValueError("a raster without a CRS cannot be reprojected: give it a CRS (or square projected pixels)")
+    if keep_crs:
+        crs = src.crs.to_string()  # type: ignore[attr-defined]
+    else:
+        lon_w, lat_s, lon_e, lat_n = transform_bounds(src.crs, "EPSG:4326", *src.bounds, densify_pts=21)  # type: ignore[attr-defined]
+        crs = local_tm_crs(0.5 * (lat_s + lat_n), 0.5 * (lon_w + lon_e))
+    w, s, e, n = transform_bounds(src.crs, CRS.from_user_input(crs), *src.bounds, densify_pts=21)  # type: ignore[attr-defined]
+    x0, y0 = math.floor(w / cell_m) * cell_m, math.floor(s / cell_m) * cell_m
+    width, height = math.ceil((e - x0) / cell_m), math.ceil((n - y0) / cell_m)
+    # source pixel size in metres at the centre, to choose the resampling
+    to_m = Transformer.from_crs(src.crs, CRS.from_user_input(crs), always_xy=True)  # type: ignore[attr-defined]
+    tr = src.transform  # type: ignore[attr-defined]
+    u, v = src.width / 2.0, src.height / 2.0  # type: ignore[attr-defined]
+    cx, cy = tr.c + tr.a * u + tr.b * v, tr.f + tr.d * u + tr.e * v
+    px, py = cx + tr.a + tr.b, cy + tr.d + tr.e
+    (ax, ay), (bx, by) = to_m.transform(cx, cy), to_m.transform(px, py)
+    pixel_m = math.sqrt(abs((bx - ax) * (by - ay)))
+    from affine import Affine
+
+    dst_transform = Affine(cell_m, 0.0, x0, 0.0, -cell_m, y0 + height * cell_m)
+    dst = np.full((height, width), np.nan, dtype=np.float64)
+    source = src.read(band, masked=True).astype(np.float64).filled(np.nan)  # type: ignore[attr-defined]
+    reproject(
+        source=source,
+        destination=dst,
+        src_transform=tr,
+        src_crs=src.crs,  # type: ignore[attr-defined]
+        src_nodata=np.nan,
+        dst_transform=dst_transform,
+        dst_crs=crs,
+        dst_nodata=np.nan,
+        resampling=Resampling.average if pixel_m <= cell_m else Resampling.bilinear,
+    )
+    return dst, float(x0), float(y0), crs
 
 
 # --- any supported file ---------------------------------------------------------------------------------------

@@ -33,6 +33,7 @@ class CellMeasurement:
     t_last: float
     exclude: bool = False  # first residual after a start or gap: not accumulated in F (§2.7)
     reset_before: bool = False  # a gap longer than T_reset preceded it: empty the window first (§2.8)
+    s_expected: float = 0.0  # m^2, the e^2 the model expects at the true hypothesis (S_k; 0 if not accumulated)
 
 
 class CellResampler:

@@ -32,7 +32,7 @@ def rms_increment(h: F64) -> float:
     return float(np.sqrt(np.mean(0.5 * (dx * dx + dz * dz))))
 
 
-def _spectral(shape: tuple[int, ...], H: float, rng: np.random.Generator) -> F64:
+def _spectral(shape: tuple[int, ...], H: float, rng: np.random.Generator, corr_cells: float | None = None) -> F64:
     """Gaussian field with amplitude spectrum |k|^-(H + d/2), on a grid >= 2x the shape, cropped to shape.
 
     Spectral synthesis: complex white noise in the frequency domain (which is what the FFT of white noise
@@ -43,6 +43,8 @@ def _spectral(shape: tuple[int, ...], H: float, rng: np.random.Generator) -> F64
     freqs = [np.fft.fftfreq(n) for n in big[:-1]] + [np.fft.rfftfreq(big[-1])]
     grids = np.meshgrid(*freqs, indexing="ij", sparse=True)
     k2 = sum(g * g for g in grids)
+    if corr_cells is not None:  # von Karman: flat spectrum below k_c = 1/corr (correlation length, cells)
+        k2 = k2 + (1.0 / corr_cells) ** 2
     k2.flat[0] = 1.0
     amp = np.power(k2, -(H + len(shape) / 2.0) / 2.0)
     amp.flat[0] = 0.0  # no mean
@@ -52,9 +54,16 @@ def _spectral(shape: tuple[int, ...], H: float, rng: np.random.Generator) -> F64
     return out
 
 
-def fbm_2d(shape: tuple[int, int], rng: np.random.Generator, H: float = 0.6, rms_inc_m: float = 12.0) -> F64:
-    """2-D fBm surface (zero mean) with RMS adjacent-cell increment ``rms_inc_m``."""
-    h = _spectral(shape, H, rng)
+def fbm_2d(
+    shape: tuple[int, int],
+    rng: np.random.Generator,
+    H: float = 0.6,
+    rms_inc_m: float = 12.0,
+    corr_cells: float | None = None,
+) -> F64:
+    """2-D fBm surface (zero mean) with RMS adjacent-cell increment ``rms_inc_m``; with ``corr_cells`` a von
+    Karman surface (fBm below that scale, uncorrelated beyond it: power ~ (|k|^2 + 1/corr^2)^-(H+1))."""
+    h = _spectral(shape, H, rng, corr_cells)
     h -= h.mean()
     out: F64 = h * (rms_inc_m / rms_increment(h))
     return out
@@ -78,6 +87,7 @@ def make_terrain(
     periodic_amp_m: float = 40.0,
     periodic_cells: float = 10.0,
     base_m: float = 500.0,
+    corr_cells: float | None = None,
 ) -> F64:
     """Cell-centre heights of one of the digest's terrain types (axis 0 = x, axis 1 = z), metres.
 
@@ -86,7 +96,7 @@ def make_terrain(
     """
     n_i, n_j = shape
     if kind == "informative":
-        h = fbm_2d(shape, rng, H, rms_inc_m)
+        h = fbm_2d(shape, rng, H, rms_inc_m, corr_cells)
     elif kind == "flat":
         h = fbm_2d(shape, rng, H, flat_rms_inc_m)
     elif kind == "ridge_z":
