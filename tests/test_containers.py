@@ -249,14 +249,33 @@ def test_a_router_10_s_late_delays_the_stack_and_loses_nothing(images: str, tmp_
     assert_same_recording(recording(recordings), reference.result())
 
 
+def recorded_against_end_marker(recordings: Path, scenario: str) -> tuple[int, int]:
+    """(messages the player's end marker says it published, messages recorded on those keys + refused by the
+    recorder as invalid): equal when the recording is complete."""
+    channels = recording(recordings)
+    ends = [m for *_, m in channels.get(f"fixstream/scenario/{scenario}", []) if m.event == "end"]
+    assert len(ends) == 1, sorted(channels)
+    published = ends[0].published
+    refused = max(
+        (m.count for *_, m in channels.get("fixstream/diag/recorder/main", []) if m.reason == "non_finite"), default=0
+    )
+    return sum(published.values()), sum(len(channels.get(k, [])) for k in published) + refused
+
+
 @pytest.mark.e2e
 @pytest.mark.slow
-def test_a_recorder_35_s_late_fails_the_run_instead_of_recording_nothing(images: str, tmp_path: Path) -> None:
-    """Issue 13 item 5 under compose: pcl_tracker_demo's wait_for leaves the recorder out, the recorder starts
-    35 s late (its wait_timeout_s is 30 s). The player waits for it all the same (compose.yaml's --wait-for),
-    gives up with one line and compose exits with the player's code 3, never 0."""
+@pytest.mark.parametrize("delay_s", [35, 60])
+def test_a_late_recorder_never_ends_in_an_empty_recording_and_exit_0(images: str, tmp_path: Path, delay_s: int) -> None:
+    """Issue 13 item 5 under compose: pcl_tracker_demo's wait_for leaves the recorder out (wait_timeout_s 30 s),
+    and the recorder starts ``delay_s`` late. The player waits for it all the same (compose.yaml's --wait-for).
+    35 s (the issue's case) races the player's own 30 s, counted from its own start a few seconds after the
+    recorder's container: either the recorder makes it and the recording is complete, or the player gives up
+    with one line and compose exits with its code 3. 60 s: always the second. Never what the issue saw, an
+    empty recording and exit code 0."""
     late = tmp_path / "compose.late-recorder.yaml"
-    late.write_text('services:\n  recorder:\n    command: ["sh", "-c", "sleep 35 && exec fixstream run recorder"]\n')
+    late.write_text(
+        f'services:\n  recorder:\n    command: ["sh", "-c", "sleep {delay_s} && exec fixstream run recorder"]\n'
+    )
     services = ("router", "recorder", "player", "pcl_tracker-rx1-fm", "pcl_tracker-rx1-dvbt")
     from container_support import compose_up, docker_api
 
@@ -267,11 +286,17 @@ def test_a_recorder_35_s_late_fails_the_run_instead_of_recording_nothing(images:
         FIXSTREAM_ROUTER_PORT=str(free_tcp_port()),
         FIXSTREAM_SCENARIO="scenarios/pcl_tracker_demo.yaml",
     )
+    project = f"fixstream-late-{os.getpid()}-{delay_s}"
     with docker_api() as host:
-        proc = compose_up(
-            f"fixstream-late-{os.getpid()}", (COMPOSE, ROUTER_OVERRIDE, late), env, host, services=services
-        )
+        proc = compose_up(project, (COMPOSE, ROUTER_OVERRIDE, late), env, host, services=services)
     out = proc.stdout + proc.stderr
-    assert proc.returncode == 3, out[-5000:]
-    assert re.search(r"no live token on fixstream/alive/recorder/main after 30 s", out), out[-3000:]
     assert "Traceback" not in out, out[-5000:]
+    if proc.returncode == 0 and delay_s < 60:
+        published, recorded = recorded_against_end_marker(recordings, "pcl_tracker_demo")
+        assert published > 0 and recorded == published, (published, recorded)
+        return
+    assert proc.returncode == 3, out[-5000:]
+    gave_up = [ln for ln in out.splitlines() if "waiting for services" in ln]
+    line = "fixstream play: pcl_tracker_demo: waiting for services: no live token on fixstream/alive/recorder/main"
+    assert len(gave_up) == 1 and gave_up[0].endswith(f"{line} after 30 s"), out[-3000:]
+    assert not list(recordings.glob("*.mcap"))
