@@ -47,12 +47,12 @@ class NavPacket(StrictModel):
     kind: Literal["LEADER", "FOLLOWER"]
     leader_id: str = Field(min_length=1, max_length=64)
     cycle_seq: int = Field(ge=0, lt=2**16)
-    assignment_epoch: int = Field(ge=0)
+    assignment_epoch: int = Field(ge=0, le=2**62)
     node_id: str | None = Field(default=None, max_length=64)
     pos_ned_m: Vec3 = Field(description="beacon transducer position, NED, m")
     pos_sigma_m: float = Field(ge=0.0, le=1_000.0)
     reply_delay_s: float | None = Field(default=None, ge=0.0, le=60.0, description="follower's own clock")
-    state_flags: int = Field(default=0, ge=0)
+    state_flags: int = Field(default=0, ge=0, le=2**32 - 1)
 
 
 class AcousticArrival(Message):

@@ -22,13 +22,20 @@ class StrictModel(BaseModel):
     model_config = ConfigDict(strict=True, extra="forbid", allow_inf_nan=False, frozen=True)
 
 
+#: latest time of validity a message may carry, ns: 2**62 ns is 146 years after the scenario clock's zero (or
+#: the year 2116 on the Unix clock of recorded data), and the sum of two stamps still fits a signed 64-bit integer
+MAX_STAMP_NS = 2**62
+#: largest per-publisher sequence number (a signed 64-bit integer, so msgpack, numpy and every reader hold it)
+MAX_SEQ = 2**63 - 1
+
+
 class Header(StrictModel):
     """Common header of every message (architecture rule 3)."""
 
-    stamp_ns: int = Field(ge=0, description="time of validity of the data, ns on the scenario clock")
+    stamp_ns: int = Field(ge=0, le=MAX_STAMP_NS, description="time of validity of the data, ns on the scenario clock")
     frame_id: str = Field(default="", max_length=128, description="frame of the spatial quantities")
     source: str = Field(default="", max_length=256, description="publisher that produced the message")
-    seq: int = Field(default=0, ge=0, description="per-publisher sequence number, for loss counting")
+    seq: int = Field(default=0, ge=0, le=MAX_SEQ, description="per-publisher sequence number, for loss counting")
 
     @property
     def stamp_s(self) -> float:

@@ -74,7 +74,7 @@ class BistaticScan(Message):
 
     receiver_id: str = Field(min_length=1, max_length=64)
     illuminator_id: str = Field(min_length=1, max_length=64)
-    scan_id: int = Field(ge=0)
+    scan_id: int = Field(ge=0, le=2**62)
     plots: list[BistaticPlot] = Field(max_length=100_000)
 
 

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field
 
-from .base import Message, Vec3
+from .base import MAX_SEQ, Message, Vec3
 
 
 class Truth(Message):
@@ -17,7 +17,7 @@ class Truth(Message):
     velocity_mps: Vec3 | None = None
     acceleration_mps2: Vec3 | None = None
     attitude_rad: Vec3 | None = Field(default=None, description="[heading, pitch, roll], rad")
-    extra: dict[str, float] = Field(default_factory=dict, description="simulator-specific true values")
+    extra: dict[str, float] = Field(default_factory=dict, max_length=64, description="simulator-specific true values")
 
 
 class ScenarioMarker(Message):
@@ -25,5 +25,7 @@ class ScenarioMarker(Message):
 
     event: Literal["start", "end"]
     scenario: str = Field(max_length=256)
-    seed: int
-    published: dict[str, int] = Field(default_factory=dict, description="messages published per key")
+    seed: int = Field(ge=0, le=2**63 - 1)
+    published: dict[str, Annotated[int, Field(ge=0, le=MAX_SEQ)]] = Field(
+        default_factory=dict, max_length=65_536, description="messages published per key (seq 0 to n - 1 of its source)"
+    )

@@ -97,13 +97,60 @@ def _resolve(encoding: str) -> type[Message]:
     return model
 
 
+#: largest payload decoded, bytes (a service's own ``max_payload_bytes`` refuses earlier, before its queue)
+MAX_PAYLOAD_BYTES = 4 << 20
+#: per-object limits handed to msgpack, so that no payload allocates beyond what its size allows: the largest
+#: legitimate message (a scan of a few thousand plots, a marker naming thousands of keys) is far below each one.
+#: Nesting is bounded by msgpack's own stack (1024 levels: ``StackError``, reported as ``bad_msgpack``).
+MAX_STR_LEN = 1 << 16
+MAX_BIN_LEN = 1 << 20
+MAX_ARRAY_LEN = 1 << 17
+MAX_MAP_LEN = 1 << 14
+
+
 def unpack(payload: bytes) -> Any:
+    """The msgpack object of a payload, within the size and per-object limits above (else DecodeError)."""
+    if len(payload) > MAX_PAYLOAD_BYTES:
+        raise DecodeError("payload_too_large", f"{len(payload)} bytes > {MAX_PAYLOAD_BYTES}")
     try:
-        return msgpack.unpackb(payload, raw=False, strict_map_key=True)
+        return msgpack.unpackb(
+            payload,
+            raw=False,
+            strict_map_key=True,
+            max_str_len=MAX_STR_LEN,
+            max_bin_len=MAX_BIN_LEN,
+            max_array_len=MAX_ARRAY_LEN,
+            max_map_len=MAX_MAP_LEN,
+            max_ext_len=0,
+        )
     except msgpack.ExtraData as exc:
         raise DecodeError("trailing_bytes", f"{len(exc.extra)} bytes after the message") from None
-    except (ValueError, msgpack.UnpackException, TypeError) as exc:
+    except ValueError as exc:
+        if "exceeds max_" in str(exc):
+            raise DecodeError("too_large", str(exc)) from None
         raise DecodeError("bad_msgpack", f"{type(exc).__name__}: {exc}") from None
+    except (msgpack.UnpackException, TypeError) as exc:
+        raise DecodeError("bad_msgpack", f"{type(exc).__name__}: {exc}") from None
+
+
+def header_of(obj: Any) -> tuple[str, int] | None:
+    """``(header.source, header.seq)`` of an unpacked message, or None if it has no well-formed header (the
+    validation reports why). Used for per-publisher accounting, before and whatever the message's validation."""
+    header = obj.get("header") if type(obj) is dict else None
+    if type(header) is not dict:
+        return None
+    source, seq = header.get("source", ""), header.get("seq", 0)
+    if type(source) is not str or type(seq) is not int:
+        return None
+    return source, seq
+
+
+def peek_header(payload: bytes) -> tuple[str, int] | None:
+    """:func:`header_of` the payload, or None if it does not unpack (within the limits)."""
+    try:
+        return header_of(unpack(payload))
+    except DecodeError:
+        return None
 
 
 def validate(model: type[Message], obj: Any) -> Message:

@@ -10,3 +10,12 @@ class InputRejected(ValueError):
         super().__init__(f"{reason}: {detail}" if detail else reason)
         self.reason = reason
         self.detail = detail
+
+
+class StartupError(RuntimeError):
+    """A process cannot start (unreachable router, missing or invalid setting, bad argument): the command line
+    prints the message as one line and exits with code 2."""
+
+
+class ConnectError(StartupError):
+    """No Zenoh router answered on the configured endpoints within the connect timeout."""

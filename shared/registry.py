@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib
 
+from .errors import StartupError
 from .service import Service
 
 
@@ -12,7 +13,7 @@ def load_service(name: str) -> Service:
         module = importlib.import_module(f"services.{name}.service")
     except ModuleNotFoundError as exc:
         if exc.name and exc.name.startswith(f"services.{name}"):
-            raise SystemExit(f"fixstream: no service named {name!r} (looked for services/{name}/service.py)") from None
+            raise StartupError(f"no service named {name!r} (looked for services/{name}/service.py)") from None
         raise
     service: Service = module.build()
     return service

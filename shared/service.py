@@ -11,14 +11,27 @@ handler (which calls a pure core), and publishes what the handler returns. Aroun
 * shuts down cleanly on SIGTERM/SIGINT.
 
 Samples are queued by Zenoh's callback threads and processed by one thread in arrival order, so a
-service is deterministic for a given input order (architecture rule 1).
+service is deterministic for a given input order (architecture rule 1). The queue is bounded in items and
+bytes; when it is full, the delivery thread is held (which slows blocking publishers) for at most
+``enqueue_block_s``, then samples are dropped and counted (``queue_full``) until the queue has drained to half,
+so a busy service never holds Zenoh's thread long enough to lose its session. A payload larger than
+``max_payload_bytes`` is refused unread.
+
+**Faults are counted where they happen.** Every sample's ``(header.source, header.seq)`` per key goes through a
+:class:`~shared.seq.SeqTracker`: transport gaps are ``lost`` (with a ``seq_gap`` diagnostic), repeats and restarts
+are counted apart. Every rejection has a reason, every output that cannot be published is reported
+(``publish_failed``) and the service goes on.
 
 **End of a scenario.** Zenoh keeps one publisher's order per subscription, but each subscription is
 delivered on its own thread, so the player's end marker (on ``fixstream/scenario/<name>``) can overtake
 the last data. The marker carries the number of messages the player published per key; the base counts
 what arrives on every key the service subscribes to and calls :meth:`Service.on_scenario_end` only once
 every announced message on those keys has arrived — after the sample that completes the count, whatever
-that sample's fate (accepted or rejected). If some never arrive, the run ends anyway ``end_wait_s`` of
+that sample's fate (accepted or rejected). Only the marker's own publisher counts: a message counts towards an
+end marker from ``player/<x>`` if it came from ``player/<x>`` (its ``header.source``) and is not a repeat of
+the last seq on its key; an end marker from any other source is refused (``foreign_marker``), and a payload
+that does not even unpack counts for nobody, so junk on the bus can neither end a run early nor leak it into the
+next. If some never arrive, the run ends anyway ``end_wait_s`` of
 wall time after the last counted sample, at the next start marker, or at shutdown (logged and counted as
 ``incomplete`` in the status); :meth:`Service.run_offline` ends it after its last event. Services therefore
 implement ``on_scenario_end`` as a plain flush.
@@ -46,6 +59,7 @@ from schemas import Diagnostic, Header, Message, ScenarioMarker
 
 from . import codec, keys
 from .errors import InputRejected
+from .seq import SeqTracker
 from .session import open_session
 from .settings import ServiceSettings, ZenohSettings
 
@@ -81,6 +95,10 @@ class Counters:
     accepted: int = 0
     rejected: int = 0
     published: int = 0
+    #: samples dropped before processing (the inbound queue was full), never in ``received``
+    dropped: int = 0
+    #: outputs a handler produced that could not be published
+    publish_failed: int = 0
     rejected_by_reason: Counter[str] = field(default_factory=Counter)
     last_error: str | None = None
     last_error_key: str | None = None
@@ -91,6 +109,8 @@ class Counters:
             "accepted": self.accepted,
             "rejected": self.rejected,
             "published": self.published,
+            "dropped": self.dropped,
+            "publish_failed": self.publish_failed,
             "rejected_by_reason": dict(self.rejected_by_reason),
             "last_error": self.last_error,
             "last_error_key": self.last_error_key,
@@ -99,10 +119,81 @@ class Counters:
 
 @dataclass
 class _PendingEnd:
-    """An end marker waiting for the messages it announced on the service's keys."""
+    """An end marker waiting for the messages its publisher announced on the service's keys."""
 
     marker: ScenarioMarker
-    expected: dict[str, int]
+    #: (key, the marker's source) -> messages announced
+    expected: dict[tuple[str, str], int]
+
+
+#: the publishers whose end markers end runs, and whose messages count towards them
+PLAYER_PREFIX = "player/"
+#: the source run_offline gives the events no publisher stamped
+OFFLINE_PLAYER = PLAYER_PREFIX + "offline"
+#: (key, source) pairs whose arrivals are counted for end markers, at most
+MAX_COUNTED_PAIRS = 65_536
+
+
+class _Inbox:
+    """The inbound queue between Zenoh's delivery threads and the processing thread, bounded in items and bytes.
+
+    ``put`` holds the delivery thread while the queue is full, for at most ``block_s``; then it drops and counts,
+    and keeps dropping at once (no further hold) until the queue has drained to half its bounds."""
+
+    def __init__(self, max_items: int, max_bytes: int, block_s: float) -> None:
+        self.max_items, self.max_bytes, self.block_s = max_items, max_bytes, block_s
+        self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._lock = threading.Lock()
+        self.bytes = 0
+        self.dropped = 0
+        self._shedding = False
+
+    def _admit(self, size: int) -> bool:
+        n, b = self._q.qsize(), self.bytes
+        if self._shedding:
+            if n > self.max_items // 2 or b > self.max_bytes // 2:
+                return False
+            self._shedding = False
+        return n < self.max_items and b + size <= self.max_bytes
+
+    def put(self, item: Any, size: int, stop: threading.Event) -> bool:
+        deadline: float | None = None
+        while True:
+            with self._lock:
+                if self._admit(size):
+                    self.bytes += size
+                    self._q.put((item, size))
+                    return True
+                shedding = self._shedding
+            now = time.monotonic()
+            if deadline is None:
+                deadline = now + self.block_s
+            if shedding or stop.is_set() or now >= deadline:
+                with self._lock:
+                    self._shedding = True
+                    self.dropped += 1
+                return False
+            time.sleep(0.001)
+
+    def put_control(self, item: Any) -> None:
+        """An item that is never dropped and costs no bytes (the stop sentinel)."""
+        self._q.put((item, 0))
+
+    def get(self, timeout: float | None = None) -> Any:
+        """The next item (``queue.Empty`` after ``timeout`` s; None: do not wait)."""
+        item, size = self._q.get(timeout=timeout) if timeout is not None else self._q.get_nowait()
+        if size:
+            with self._lock:
+                self.bytes -= size
+        return item
+
+    def qsize(self) -> int:
+        return self._q.qsize()
+
+    def take_dropped(self) -> int:
+        with self._lock:
+            n, self.dropped = self.dropped, 0
+        return n
 
 
 class _DiagLimiter:
@@ -144,9 +235,9 @@ class Service:
         Header(stamp_ns=0, source=self.source)  # publish stamps it unvalidated online: check it once here
         self.counters = Counters()
         self.session: zenoh.Session | None = None
-        #: C-level FIFO (no Python lock/condition per put and get); the bound is kept by _enqueue
-        self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
-        self._queue_max = settings.queue_size
+        self._queue = _Inbox(settings.queue_size, settings.queue_max_bytes, settings.enqueue_block_s)
+        self._max_payload = settings.max_payload_bytes
+        self.seq = SeqTracker()
         self._stop = threading.Event()
         self._seq: dict[str, int] = {}
         self._publishers: OrderedDict[str, zenoh.Publisher] = OrderedDict()
@@ -160,8 +251,8 @@ class Service:
         self.outbox: list[Output] = []
         self.started_at = time.time()
         self.rx_time_ns = 0
-        #: samples arrived per subscribed data key and not yet consumed by an end of scenario
-        self._arrived: Counter[str] = Counter()
+        #: a player's samples arrived per (subscribed data key, source), not yet consumed by an end of scenario
+        self._arrived: Counter[tuple[str, str]] = Counter()
         self._last_arrival = time.monotonic()
         self._pending_end: _PendingEnd | None = None
         #: ends of scenario runs: "complete" (every announced message arrived) or "incomplete"
@@ -199,7 +290,9 @@ class Service:
             "instance": self.instance,
             "uptime_s": round(time.time() - self.started_at, 3),
             "queue_depth": self._queue.qsize(),
+            "queue_bytes": self._queue.bytes,
             "counters": self.counters.as_dict(),
+            "seq": self.seq.as_dict(),
             "diag_suppressed": self.diag_suppressed,
             "scenario": {"end_pending": self._pending_end is not None, "ends": dict(self.scenario_ends)},
             "config": self.settings.model_dump(mode="json"),
@@ -208,7 +301,7 @@ class Service:
 
     def stop(self) -> None:
         self._stop.set()
-        self._queue.put(_STOP)
+        self._queue.put_control(_STOP)
 
     def install_signal_handlers(self) -> None:
         def handler(signum: int, frame: FrameType | None) -> None:
@@ -290,6 +383,22 @@ class Service:
         if self.session is not None and self.diag_rate_hz > 0 and not self._limiter.allow(reason, time.monotonic()):
             self.diag_suppressed += 1
             return
+        try:
+            self._publish_diag(key, reason, detail, count, counts, level, stamp_ns)
+        except Exception:  # a diagnostic that cannot go out is logged; the counts it carried are kept
+            self.diag_suppressed += 1
+            log.error("%s: diagnostic %s on %s not published:\n%s", self.source, reason, key, traceback.format_exc())
+
+    def _publish_diag(
+        self,
+        key: str,
+        reason: str,
+        detail: str,
+        count: int,
+        counts: dict[str, int],
+        level: Literal["info", "warning", "error"],
+        stamp_ns: int,
+    ) -> None:
         diag = Diagnostic(
             header=Header(stamp_ns=stamp_ns),
             service=self.name,
@@ -307,14 +416,25 @@ class Service:
         """Feed messages through the same decode/validate/dispatch path without Zenoh; return outputs.
 
         Each message is encoded with the wire codec first, so an offline run and a run over Zenoh see
-        identical bytes. Outputs (fixes and diagnostics) are stamped with source and seq as online.
+        identical bytes. Outputs (fixes and diagnostics) are stamped with source and seq as online. Messages
+        that no publisher stamped (``header.source`` empty: hand-built events) are stamped as a player stamps
+        them, ``player/offline`` with a per-key seq from 0 (from 0 again after a start marker); messages that
+        carry a source (the player's events, a recording) keep their header.
         """
         if self.session is not None:
             raise RuntimeError("run_offline is for a service without a Zenoh session")
         self._subs = self.subscriptions()
         start = len(self.outbox)
+        seq: Counter[str] = Counter()
         for key, msg in events:
-            self.process(key, codec.encode(msg), codec.encoding_of(type(msg)), rx_time_ns=0)
+            if msg.header.source:
+                payload = codec.encode(msg)
+            else:
+                if isinstance(msg, ScenarioMarker) and msg.event == "start":
+                    seq.clear()
+                payload = codec.encode_stamped(msg, OFFLINE_PLAYER, seq[key])
+                seq[key] += 1
+            self.process(key, payload, codec.encoding_of(type(msg)), rx_time_ns=0)
         self._end_scenario(force=True)  # nothing more will arrive
         return self.outbox[start:]
 
@@ -326,17 +446,46 @@ class Service:
         """
         self.rx_time_ns = rx_time_ns if rx_time_ns is not None else time.time_ns()
         self.counters.received += 1
+        if len(payload) > self._max_payload:
+            self.reject(key, "payload_too_large", f"{len(payload)} bytes > max_payload_bytes {self._max_payload}")
+            return
         sub = self._match(key)
-        counted = sub is not None and not _is_scenario_key(key)
-        if counted:
-            self._arrived[key] += 1
-            self._last_arrival = time.monotonic()
+        counted = sub is not None and self._account(key, payload)
         outputs = self._dispatch(key, payload, encoding, sub)
         if outputs is not None:
             self.counters.accepted += 1
             self._publish_all(outputs)
         if counted and self._pending_end is not None:
             self._end_scenario(force=False)
+
+    def _account(self, key: str, payload: bytes) -> bool:
+        """Seq checks of the sample's publisher; True if it counts towards its player's end marker."""
+        if _is_scenario_key(key):
+            return False  # markers: a missing one shows as a run that ends by end_wait_s
+        header = codec.peek_header(payload)
+        if header is None:
+            return False  # does not unpack: the decode reports it; it counts for nobody
+        source, seq = header
+        check = self.seq.check(key, source, seq)
+        if check.event == "seq_gap":
+            self.report(
+                key,
+                "seq_gap",
+                f"{check.missing} lost on {key} from {source}: expected seq {check.expected}, got {seq}",
+                count=self.seq.events["seq_gap"],
+                counts=self.seq.as_dict(),
+                level="warning",
+            )
+        elif check.event == "duplicate":
+            return False
+        if not source.startswith(PLAYER_PREFIX):
+            return False
+        pair = (key, source)
+        if pair not in self._arrived and len(self._arrived) >= MAX_COUNTED_PAIRS:
+            return False
+        self._arrived[pair] += 1
+        self._last_arrival = time.monotonic()
+        return True
 
     def _dispatch(self, key: str, payload: bytes, encoding: str, sub: Subscription | None) -> Iterable[Output] | None:
         """The handler's outputs (``()`` if none), or None when the sample was rejected (and reported)."""
@@ -365,13 +514,17 @@ class Service:
 
     def _on_marker(self, marker: ScenarioMarker) -> list[Output]:
         """A start marker ends a run still pending; an end marker waits for what it announced (module doc)."""
+        source = marker.header.source
+        if not source.startswith(PLAYER_PREFIX):
+            raise InputRejected("foreign_marker", f"{marker.event} marker from {source!r}, not a player")
         if marker.event == "start":
             out = self._end_scenario(force=True, publish=False) if self._pending_end is not None else []
+            self.seq.forget_source(source)  # the player counts its seq from 0 again
             return out + list(self.on_scenario_start(marker) or ())
         if self._pending_end is not None:  # two end markers in a row: the first run is over
             self._end_scenario(force=True)
         expected = {
-            k: n
+            (k, source): n
             for k, n in marker.published.items()
             if n > 0 and not _is_scenario_key(k) and self._match(k) is not None
         }
@@ -413,8 +566,21 @@ class Service:
         return outputs
 
     def _publish_all(self, outputs: Iterable[Output]) -> None:
+        """Publish each output; one that fails (an encoding the transport refuses, a closed session) is reported
+        as ``publish_failed`` and the others still go out: nothing a handler returns ends the process."""
         for out in outputs:
-            self.publish(out.key, out.msg)
+            try:
+                self.publish(out.key, out.msg)
+            except Exception as exc:
+                self.counters.publish_failed += 1
+                log.error(
+                    "%s: publishing %s on %s failed:\n%s",
+                    self.source,
+                    type(out.msg).__name__,
+                    out.key,
+                    traceback.format_exc(),
+                )
+                self.reject(out.key, "publish_failed", f"{type(out.msg).__name__}: {type(exc).__name__}: {exc}")
 
     # ----- internals ---------------------------------------------------------------------------
     def _check_monotonic(self, key: str, msg: Message) -> None:
@@ -434,11 +600,19 @@ class Service:
         return found
 
     def _enqueue(self, sample: zenoh.Sample) -> None:
-        item = (str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding), time.time_ns())
-        q = self._queue
-        while q.qsize() >= self._queue_max and not self._stop.is_set():
-            time.sleep(0.001)  # back-pressure: hold Zenoh's callback thread until the loop has caught up
-        q.put(item)
+        payload = sample.payload
+        size = len(payload)
+        if size > self._max_payload:  # refused unread: only its size travels to the processing thread
+            item: tuple[str, bytes, str, int] = (
+                str(sample.key_expr),
+                _Oversized(size),
+                str(sample.encoding),
+                time.time_ns(),
+            )
+            self._queue.put(item, 0, self._stop)
+            return
+        item = (str(sample.key_expr), payload.to_bytes(), str(sample.encoding), time.time_ns())
+        self._queue.put(item, size, self._stop)
 
     def _declare(self) -> None:
         assert self.session is not None
@@ -457,7 +631,8 @@ class Service:
 
     def _answer_status(self, query: zenoh.Query) -> None:
         body = json.dumps(self.status(), default=str).encode()
-        query.reply(query.key_expr, body, encoding=zenoh.Encoding.APPLICATION_JSON)
+        # on this service's own key, never the query's (a wildcard): replies on one key would be consolidated
+        query.reply(keys.status(self.name, self.instance), body, encoding=zenoh.Encoding.APPLICATION_JSON)
 
     def _loop(self) -> None:
         next_idle = time.monotonic() + 0.2
@@ -475,22 +650,39 @@ class Service:
                 next_idle = now + 0.2
                 self._idle()
 
+    def _report_drops(self) -> None:
+        dropped = self._queue.take_dropped()
+        if dropped:
+            self.counters.dropped += dropped
+            self.report(
+                f"{keys.ROOT}/**",
+                "queue_full",
+                f"{dropped} samples dropped: the inbound queue was full for {self.settings.enqueue_block_s:g} s",
+                count=self.counters.dropped,
+                counts={"queue_full": self.counters.dropped},
+                level="error",
+            )
+
     def _idle(self) -> None:
+        self._report_drops()
         pending = self._pending_end
         if pending is not None and time.monotonic() - self._last_arrival > self.settings.end_wait_s:
             self._end_scenario(force=True)
         try:
-            for out in self.on_idle():
-                self.publish(out.key, out.msg)
-        except Exception:
+            outputs = list(self.on_idle())
+        except Exception as exc:
             log.error("%s: on_idle failed:\n%s", self.source, traceback.format_exc())
+            self.reject(f"{keys.ROOT}/**", "internal_error", f"on_idle: {type(exc).__name__}: {exc}")
+            return
+        self._publish_all(outputs)
 
     def _drain(self) -> None:
         """Process what was queued before the stop, so a SIGTERM does not drop received samples."""
         while True:
             try:
-                item = self._queue.get_nowait()
+                item = self._queue.get()
             except queue.Empty:
+                self._report_drops()
                 return
             if item is not _STOP:
                 self.process(*item)
@@ -516,6 +708,20 @@ class Service:
             if self.session is not None:
                 self.session.close()
             log.info("%s: stopped", self.source)
+
+
+class _Oversized(bytes):
+    """Stands in for a payload refused unread: empty, but as long as the original for the size check."""
+
+    def __new__(cls, size: int) -> _Oversized:
+        obj = super().__new__(cls)
+        obj.size = size
+        return obj
+
+    size: int
+
+    def __len__(self) -> int:
+        return self.size
 
 
 def _is_scenario_key(key: str) -> bool:

@@ -14,8 +14,10 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
 
 import yaml
-from pydantic import BaseModel, BeforeValidator, Field
+from pydantic import BaseModel, BeforeValidator, Field, ValidationError
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+from .local_stack import default_connect
 
 
 def _split_list(value: Any) -> Any:
@@ -38,10 +40,19 @@ class ZenohSettings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="FIXSTREAM_ZENOH_", extra="ignore")
 
     mode: Literal["client", "peer", "router"] = "client"
-    connect: StrList = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    connect: StrList = Field(
+        default_factory=default_connect,
+        description="endpoints to connect to; default: the running local stack (fixstream up), else tcp/127.0.0.1:7447",
+    )
     listen: StrList = Field(default_factory=list)
     multicast_scouting: bool = False
     config_file: Path | None = Field(default=None, description="a zenoh JSON5 config used as the base")
+    connect_timeout_s: float = Field(
+        default=30.0,
+        ge=-1.0,
+        description="how long opening a session keeps retrying its connect endpoints, s (-1: forever, 0: one try);"
+        " once open, a session reconnects by itself whenever its router comes back",
+    )
 
 
 def _file_defaults() -> dict[str, Any]:
@@ -61,6 +72,22 @@ class ServiceSettings(BaseSettings):
 
     instance: str = Field(default="default", description="instance name, the last chunk of its keys")
     queue_size: int = Field(default=100_000, ge=1, description="inbound samples held before back-pressure")
+    queue_max_bytes: int = Field(
+        default=256 << 20, ge=1 << 16, description="inbound payload bytes held before back-pressure, bytes"
+    )
+    max_payload_bytes: int = Field(
+        default=1 << 20,
+        ge=1 << 10,
+        le=4 << 20,
+        description="a larger payload is refused unread (payload_too_large), bytes",
+    )
+    enqueue_block_s: float = Field(
+        default=1.0,
+        ge=0.0,
+        le=5.0,
+        description="longest a full queue holds Zenoh's delivery thread (slowing blocking publishers) before samples"
+        " are dropped and counted (queue_full); well below the session lease, so a busy service keeps its session, s",
+    )
     end_wait_s: float = Field(
         default=5.0,
         ge=0.0,
@@ -70,11 +97,40 @@ class ServiceSettings(BaseSettings):
 
     @classmethod
     def load(cls, **overrides: Any) -> ServiceSettings:
-        """File defaults < environment < explicit overrides."""
+        """File defaults < environment < explicit overrides. A missing or invalid setting raises pydantic's
+        ValidationError; the command line turns it into one line naming the environment variable
+        (:func:`settings_error_message`)."""
         file_data = {k: v for k, v in _file_defaults().items() if k in cls.model_fields}
         env_view = cls()  # environment (and defaults)
         merged = {**file_data, **env_view.model_dump(exclude_unset=True), **overrides}
         return cls(**merged)
+
+
+def _settings_classes(root: type[BaseSettings] = BaseSettings) -> dict[str, type[BaseSettings]]:
+    found: dict[str, type[BaseSettings]] = {}
+    for sub in root.__subclasses__():
+        found[sub.__name__] = sub
+        found.update(_settings_classes(sub))
+    return found
+
+
+def env_var_of(cls: type[BaseSettings], loc: tuple[int | str, ...]) -> str:
+    """The environment variable that sets the field at ``loc`` of settings class ``cls``."""
+    prefix = str(cls.model_config.get("env_prefix") or "")
+    delimiter = str(cls.model_config.get("env_nested_delimiter") or "__")
+    return (prefix + delimiter.join(str(part) for part in loc)).upper()
+
+
+def settings_error_message(exc: ValidationError) -> str:
+    """One line for a settings validation error: each bad field as its environment variable and the problem."""
+    cls = _settings_classes().get(exc.title)
+    parts = []
+    for err in exc.errors(include_url=False):
+        loc = tuple(err.get("loc", ()))
+        name = env_var_of(cls, loc) if cls is not None and loc else ".".join(map(str, loc)) or exc.title
+        problem = "missing (required)" if err.get("type") == "missing" else str(err.get("msg"))
+        parts.append(f"{name}: {problem}")
+    return f"invalid settings ({exc.title}): " + "; ".join(parts)
 
 
 ConfigT = TypeVar("ConfigT", bound=BaseModel)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -13,6 +14,8 @@ import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO / "tests"))
+# where `fixstream up` announces its router (shared.local_stack): the tests' own, never a user's running stack
+os.environ.setdefault("FIXSTREAM_STATE_DIR", tempfile.mkdtemp(prefix="fixstream-test-state-"))
 
 
 def fixstream_cmd(*args: str) -> list[str]:

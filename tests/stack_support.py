@@ -103,7 +103,7 @@ def offline_on_bytes(twin: Service, items: Iterable[Raw]) -> list[Output]:
 
 def stack_env(scenario: Path) -> dict[str, str]:
     """This process's environment without FIXSTREAM_* settings, plus the scenario at rate 0."""
-    env = {k: v for k, v in os.environ.items() if not k.startswith("FIXSTREAM_")}
+    env = {k: v for k, v in os.environ.items() if not k.startswith("FIXSTREAM_") or k == "FIXSTREAM_STATE_DIR"}
     env.update({"FIXSTREAM_SCENARIO": str(scenario), "FIXSTREAM_RATE": "0"})
     return env
 

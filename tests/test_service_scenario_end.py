@@ -57,22 +57,33 @@ class RunSum(Service):
         return out
 
 
+PLAYER = "player/test"
+
+
 def depth(t: int, d: float) -> Depth:
     return Depth(header=Header(stamp_ns=t), depth_m=d)
 
 
 def end(published: dict[str, int], name: str = "s") -> ScenarioMarker:
-    return ScenarioMarker(header=Header(stamp_ns=10), event="end", scenario=name, seed=0, published=published)
+    header = Header(stamp_ns=10, source=PLAYER, seq=1)
+    return ScenarioMarker(header=header, event="end", scenario=name, seed=0, published=published)
 
 
-START = ScenarioMarker(header=Header(stamp_ns=0), event="start", scenario="s", seed=0)
+START = ScenarioMarker(header=Header(stamp_ns=0, source="player/test"), event="start", scenario="s", seed=0)
 
 
-def feed(svc: Service, events: list[tuple[str, Message]]) -> None:
-    """``process`` each event as a session would (no final end of input, unlike ``run_offline``)."""
+def feed(svc: Service, events: list[tuple[str, Message]], source: str = PLAYER) -> None:
+    """``process`` each event as a session would (no final end of input, unlike ``run_offline``), stamped as the
+    player stamps them: its source, and per key a seq counting from 0 (from 0 again after a start marker)."""
     svc._subs = svc.subscriptions()
+    seq: dict[str, int] = getattr(svc, "_test_seq", {})
+    svc._test_seq = seq  # type: ignore[attr-defined]
     for key, msg in events:
-        svc.process(key, codec.encode(msg), codec.encoding_of(type(msg)))
+        if isinstance(msg, ScenarioMarker) and msg.event == "start":
+            seq.clear()
+        n = seq.get(key, 0)
+        seq[key] = n + 1
+        svc.process(key, codec.encode_stamped(msg, source, n), codec.encoding_of(type(msg)))
 
 
 def sums(svc: Service) -> list[float]:
@@ -151,7 +162,8 @@ def test_over_a_router_the_run_ends_after_the_data(router: str) -> None:
         enc = zenoh.Encoding(codec.encoding_of(Depth))
         n = 500
         for i in range(n):
-            client.put(KEY_A if i % 2 else KEY_B, codec.encode(depth(i, 1.0)), encoding=enc)
+            payload = codec.encode_stamped(depth(i, 1.0), PLAYER, i // 2)  # as the player stamps: seq per key
+            client.put(KEY_A if i % 2 else KEY_B, payload, encoding=enc)
         m = end({KEY_A: n // 2, KEY_B: n // 2})
         client.put(SCEN, codec.encode(m), encoding=zenoh.Encoding(codec.encoding_of(ScenarioMarker)))
         assert wait_until(lambda: got == [float(n)], timeout=20)

@@ -6,12 +6,35 @@ import argparse
 
 from ..settings import ZenohSettings
 
+#: a command-line client waits less for its router than a service does (a user is waiting at the prompt)
+CLIENT_CONNECT_TIMEOUT_S = 5.0
+
 
 def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("zenoh")
-    g.add_argument("--connect", action="append", help="endpoint to connect to (repeatable); default from env")
+    g.add_argument(
+        "--connect",
+        action="append",
+        help="endpoint to connect to (repeatable); default: $FIXSTREAM_ZENOH_CONNECT, else the running local stack"
+        " (fixstream up), else tcp/127.0.0.1:7447",
+    )
+    g.add_argument(
+        "--connect-timeout",
+        type=float,
+        help="seconds to keep retrying the router before giving up (default: $FIXSTREAM_ZENOH_CONNECT_TIMEOUT_S or 5)",
+    )
     g.add_argument("--listen", action="append", help="endpoint to listen on (repeatable)")
     g.add_argument("--mode", choices=["client", "peer", "router"], help="session mode; default from env")
+
+
+def key_expr(text: str) -> str:
+    """argparse ``type=``: a valid Zenoh key expression (an invalid one is a usage error, exit code 2)."""
+    import zenoh
+
+    try:
+        return str(zenoh.KeyExpr(text))
+    except zenoh.ZError:
+        raise argparse.ArgumentTypeError(f"not a valid Zenoh key expression: {text!r}") from None
 
 
 def zenoh_settings_from(args: argparse.Namespace) -> ZenohSettings:
@@ -22,5 +45,9 @@ def zenoh_settings_from(args: argparse.Namespace) -> ZenohSettings:
         overrides["listen"] = args.listen
     if getattr(args, "mode", None):
         overrides["mode"] = args.mode
+    if getattr(args, "connect_timeout", None) is not None:
+        overrides["connect_timeout_s"] = args.connect_timeout
     base = ZenohSettings()
+    if "connect_timeout_s" not in overrides and "connect_timeout_s" not in base.model_fields_set:
+        overrides["connect_timeout_s"] = CLIENT_CONNECT_TIMEOUT_S
     return base.model_copy(update=overrides)

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import argparse
 
-from .common import add_zenoh_arguments
+from .common import add_zenoh_arguments, key_expr
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("key_expr", nargs="?", default="fixstream/**")
+    parser.add_argument("key_expr", nargs="?", default="fixstream/**", type=key_expr)
     parser.add_argument("--json", action="store_true", help="one JSON object per line (key, schema, message)")
     parser.add_argument("--count", type=int, default=0, help="exit after this many messages (0: forever)")
     parser.add_argument("--timeout", type=float, default=0.0, help="exit after this many seconds (0: never)")

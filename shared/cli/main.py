@@ -9,6 +9,11 @@ import logging
 import os
 import sys
 
+from pydantic import ValidationError
+
+from ..errors import StartupError
+from ..settings import settings_error_message
+
 #: sub-command -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "router": ("shared.cli.router", "run a Zenoh router (the embedded default for local stacks)"),
@@ -54,6 +59,12 @@ def main(argv: list[str] | None = None) -> int:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:
         return 130
+    except StartupError as exc:
+        print(f"fixstream {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except ValidationError as exc:  # settings built outside ServiceSettings.load (e.g. ZenohSettings)
+        print(f"fixstream {args.command}: {settings_error_message(exc)}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -10,8 +10,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..registry import load_service
+    from pydantic import ValidationError
 
-    service = load_service(args.name)
+    from ..errors import StartupError
+    from ..registry import load_service
+    from ..settings import settings_error_message
+
+    try:
+        service = load_service(args.name)
+    except ValidationError as exc:
+        raise StartupError(f"cannot start {args.name}: {settings_error_message(exc)}") from None
+    except (OSError, ValueError) as exc:  # a map that is not there, a configuration the core refuses, ...
+        detail = " ".join(str(exc).split())
+        raise StartupError(f"cannot start {args.name}: {type(exc).__name__}: {detail}") from None
     service.install_signal_handlers()
     return service.run()

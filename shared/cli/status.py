@@ -1,14 +1,15 @@
-"""``fixstream status``: query every ``fixstream/status/**`` queryable and print the replies."""
+"""``fixstream status``: ask every service's status queryable (``fixstream/status/**``) and print every answer."""
 
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
-from .common import add_zenoh_arguments
+from .common import add_zenoh_arguments, key_expr
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("selector", nargs="?", default="fixstream/status/**")
+    parser.add_argument("selector", nargs="?", default="fixstream/status/**", type=key_expr)
     parser.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for replies")
     parser.add_argument("--json", action="store_true", help="print the raw JSON replies, one per line")
     add_zenoh_arguments(parser)
@@ -17,21 +18,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import json
 
-    from ..session import open_session
+    from ..session import open_session, query_all
     from .common import zenoh_settings_from
 
     session = open_session(zenoh_settings_from(args))
     try:
-        replies = list(session.get(args.selector, timeout=args.timeout))
+        replies = query_all(session, args.selector, args.timeout)
     finally:
-        pass
-    found = 0
+        session.close()
+    bodies: list[dict[str, Any]] = []
     for reply in replies:
         if reply.ok is None:
             print(f"error: {reply.err.payload.to_string() if reply.err else 'unknown'}")
             continue
-        found += 1
-        body = json.loads(reply.ok.payload.to_bytes())
+        bodies.append(json.loads(reply.ok.payload.to_bytes()))
+    bodies.sort(key=lambda b: (str(b.get("service")), str(b.get("instance"))))
+    for body in bodies:
         if args.json:
             print(json.dumps(body))
             continue
@@ -43,8 +45,7 @@ def run(args: argparse.Namespace) -> int:
         )
         for reason, n in sorted(c.get("rejected_by_reason", {}).items()):
             print(f"    {reason}: {n}")
-    session.close()
-    if not found:
+    if not bodies:
         print("no service answered")
         return 1
     return 0

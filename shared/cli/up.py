@@ -2,9 +2,10 @@
 
 Reads the compose file (default: compose.yaml here or in a parent directory), interpolates variables
 as compose does (the process environment over ``.env``), replaces the ``eclipse/zenoh`` router with an
-embedded ``fixstream router`` on a free loopback port, and starts every other service's command
-locally in depends_on order. Output lines are prefixed with the service name. When the driver service
-(label ``fixstream.role: driver``, the player) exits, or on Ctrl-C, the others are stopped with
+embedded ``fixstream router`` on loopback (port 7447, as compose publishes it, when free; else a free port, said
+on the console), leaves the router's endpoint where clients look (:mod:`shared.local_stack`), and starts every
+other service's command locally in depends_on order. Output lines are prefixed with the service name. When the
+driver service (label ``fixstream.role: driver``, the player) exits, or on Ctrl-C, the others are stopped with
 SIGTERM in reverse order; the MCAP files written to the recordings directory are listed at the end.
 With ``--report`` (``make demo``) the run's recording is then reported (``fixstream report``: HTML and metrics
 JSON in ``<recording>_report/``) and the page's path printed.
@@ -37,6 +38,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--drain", type=float, default=1.0, help="seconds between the driver's end and the stop")
     parser.add_argument("--profile", action="append", default=[], help="enable services of this compose profile")
+    parser.add_argument(
+        "--router-port",
+        type=int,
+        help="the embedded router's loopback port (default: $FIXSTREAM_ROUTER_PORT or 7447 when free, else any free"
+        " port; 0: any free port). Clients started with no --connect find it either way",
+    )
     parser.add_argument("--dry-run", action="store_true", help="print the local commands and exit")
     parser.add_argument("--no-color", action="store_true", help="no colours in the service prefixes")
     parser.add_argument(
@@ -47,6 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from .. import local_stack
     from ..stack import ComposeError, Supervisor, find_compose_file, load_compose, plan_stack
     from ..stack.console import Console
 
@@ -61,7 +69,9 @@ def run(args: argparse.Namespace) -> int:
         for warning in project.warnings:
             console.event(f"warning: {warning}")
         names = project.select(args.services, profiles)
-        plan = plan_stack(project, names, stop_timeout=args.timeout, create_dirs=not args.dry_run)
+        plan = plan_stack(
+            project, names, stop_timeout=args.timeout, create_dirs=not args.dry_run, router_port=args.router_port
+        )
     except (ComposeError, OSError) as exc:
         console.event(f"error: {exc}")
         return 2
@@ -73,7 +83,15 @@ def run(args: argparse.Namespace) -> int:
             for key, value in sorted(changed.items()):
                 console.event(f"{proc.service}:   {key}={value}")
         return 0
-    result = Supervisor(plan, console, ready_timeout=args.ready_timeout, drain=args.drain).run()
+    announcement = None
+    if plan.endpoint is not None:
+        announcement = local_stack.announce(plan.endpoint, str(project.path))
+        console.event(f"router on {plan.endpoint}; clients (fixstream echo, status, record, ...) attach with no flags")
+    try:
+        result = Supervisor(plan, console, ready_timeout=args.ready_timeout, drain=args.drain).run()
+    finally:
+        if announcement is not None:
+            local_stack.withdraw(announcement)
     for rec in result.recordings:
         console.event(f"recording: {rec} ({rec.stat().st_size} bytes)")
     if not result.recordings and plan.output_dirs:

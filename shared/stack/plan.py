@@ -1,7 +1,8 @@
 """Turn a compose project into local processes: the same commands, an embedded router, loopback endpoints.
 
 * A service whose image is ``eclipse/zenoh[:tag]`` becomes ``fixstream router --listen
-  tcp/127.0.0.1:<free port>`` (its ``--connect`` endpoints to other routers are rewritten too).
+  tcp/127.0.0.1:<port>``: the port compose publishes (``$FIXSTREAM_ROUTER_PORT``, default 7447) when it is
+  free, else a free one (its ``--connect`` endpoints to other routers are rewritten too).
 * Every other service runs its ``entrypoint + command`` locally: ``fixstream`` is this interpreter's
   ``python -m shared.cli.main`` and ``python``/``python3`` is this interpreter.
 * Endpoints ``<proto>/<router host>:<container port>`` in environment values and arguments become the
@@ -21,13 +22,15 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..session import free_tcp_port
+from ..session import free_tcp_port, port_free
 from .compose import ALIVE_LABEL, ComposeError, ComposeProject, ServiceSpec, Volume
 from .interpolate import parse_env_file
 
 FIXSTREAM_ARGV = [sys.executable, "-m", "shared.cli.main"]
 PYTHON_NAMES = {"python", "python3", f"python{sys.version_info.major}.{sys.version_info.minor}"}
 DEFAULT_ROUTER_PORT = 7447
+#: interpolation variable with the router port compose publishes on the host
+ROUTER_PORT_VAR = "FIXSTREAM_ROUTER_PORT"
 DEFAULT_STOP_TIMEOUT = 10.0
 _ENDPOINT = re.compile(r"^(?P<proto>[a-z0-9]+)/(?P<host>\[[^\]]*\]|[^:/]+):(?P<port>\d+)")
 
@@ -174,24 +177,37 @@ def _local_argv(argv: list[str]) -> list[str]:
     return argv
 
 
+def _router_port(project: ComposeProject, requested: int | None) -> int:
+    """The first router's loopback port: ``requested`` (0: any free port), else the port compose publishes
+    (``$FIXSTREAM_ROUTER_PORT``, default 7447) when it is free, so that clients attach with no flags; else a
+    free port (the runner says where, and announces it for clients: shared.local_stack)."""
+    if requested == 0:
+        return free_tcp_port()
+    preferred = requested or int(project.variables.get(ROUTER_PORT_VAR) or DEFAULT_ROUTER_PORT)
+    return preferred if port_free(preferred) else free_tcp_port()
+
+
 def plan_stack(
     project: ComposeProject,
     services: list[str],
     stop_timeout: float | None = None,
     environ: Mapping[str, str] | None = None,
     create_dirs: bool = True,
+    router_port: int | None = None,
 ) -> StackPlan:
     """Local processes for ``services`` (already in start order, e.g. from ``project.select``).
 
     ``stop_timeout`` overrides every service's ``stop_grace_period`` (default 10 s, as compose).
-    ``create_dirs``: create missing bind sources and temporary directories for named volumes."""
+    ``create_dirs``: create missing bind sources and temporary directories for named volumes.
+    ``router_port``: the embedded router's port (None: compose's published port if free, see
+    :func:`_router_port`; 0: any free port)."""
     base_env = dict(os.environ if environ is None else environ)
     specs = [project.services[name] for name in services]
     endpoints: dict[tuple[str, int], int] = {}
     router_ports: dict[str, int] = {}
     for spec in specs:
         if spec.is_zenoh_router:
-            router_ports[spec.name] = free_tcp_port()
+            router_ports[spec.name] = _router_port(project, router_port) if not router_ports else free_tcp_port()
             for port in _listen_ports(spec.command):
                 for host in spec.hostnames:
                     endpoints[(host, port)] = router_ports[spec.name]

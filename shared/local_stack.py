@@ -1,0 +1,92 @@
+"""Where a running local stack (``fixstream up``) says its router is, so that clients attach with no flags.
+
+``fixstream up`` writes ``<state dir>/up-<pid>.json`` (endpoint, compose file, start time) while it runs and
+removes it when it ends. A client with no ``--connect`` and no ``FIXSTREAM_ZENOH_CONNECT`` connects to the most
+recently started stack whose process is still alive, else to ``tcp/127.0.0.1:7447`` (the port compose publishes).
+
+The state directory is ``$FIXSTREAM_STATE_DIR``, else ``$XDG_RUNTIME_DIR/fixstream``, else
+``<tmp>/fixstream-<uid>``: per user, so one user's stack is never another's default.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+@dataclass(frozen=True)
+class StackAnnouncement:
+    endpoint: str
+    pid: int
+    compose_file: str
+    started_unix_s: float
+    path: Path
+
+
+def state_dir() -> Path:
+    explicit = os.environ.get("FIXSTREAM_STATE_DIR")
+    if explicit:
+        return Path(explicit)
+    runtime = os.environ.get("XDG_RUNTIME_DIR")
+    if runtime and Path(runtime).is_dir():
+        return Path(runtime) / "fixstream"
+    return Path(tempfile.gettempdir()) / f"fixstream-{os.getuid()}"
+
+
+def announce(endpoint: str, compose_file: str) -> Path:
+    """Write this process's stack announcement (atomically); returns its path for :func:`withdraw`."""
+    d = state_dir()
+    d.mkdir(parents=True, exist_ok=True, mode=0o700)
+    path = d / f"up-{os.getpid()}.json"
+    tmp = path.with_suffix(".tmp")
+    body = {"endpoint": endpoint, "pid": os.getpid(), "compose_file": compose_file, "started_unix_s": time.time()}
+    tmp.write_text(json.dumps(body))
+    tmp.replace(path)
+    return path
+
+
+def withdraw(path: Path) -> None:
+    with contextlib.suppress(FileNotFoundError):
+        path.unlink()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def running_stacks() -> list[StackAnnouncement]:
+    """Announcements of live stacks, newest first (stale files of dead processes are ignored)."""
+    found: list[StackAnnouncement] = []
+    d = state_dir()
+    if not d.is_dir():
+        return found
+    for path in d.glob("up-*.json"):
+        try:
+            body = json.loads(path.read_text())
+            ann = StackAnnouncement(
+                str(body["endpoint"]), int(body["pid"]), str(body["compose_file"]), float(body["started_unix_s"]), path
+            )
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+        if _alive(ann.pid):
+            found.append(ann)
+    return sorted(found, key=lambda a: a.started_unix_s, reverse=True)
+
+
+def default_connect() -> list[str]:
+    """The endpoint a client uses when nothing is configured: the newest live local stack, else 7447."""
+    stacks = running_stacks()
+    return [stacks[0].endpoint] if stacks else [DEFAULT_ENDPOINT]
