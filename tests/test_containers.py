@@ -294,9 +294,46 @@ def test_a_late_recorder_never_ends_in_an_empty_recording_and_exit_0(images: str
     if proc.returncode == 0 and delay_s < 60:
         published, recorded = recorded_against_end_marker(recordings, "pcl_tracker_demo")
         assert published > 0 and recorded == published, (published, recorded)
+        print(f"recorder {delay_s} s late: it made it, {recorded} of {published} messages recorded")
         return
+    print(f"recorder {delay_s} s late: the player gave up, compose exit code {proc.returncode}")
     assert proc.returncode == 3, out[-5000:]
     gave_up = [ln for ln in out.splitlines() if "waiting for services" in ln]
     line = "fixstream play: pcl_tracker_demo: waiting for services: no live token on fixstream/alive/recorder/main"
     assert len(gave_up) == 1 and gave_up[0].endswith(f"{line} after 30 s"), out[-3000:]
     assert not list(recordings.glob("*.mcap"))
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_two_stacks_side_by_side(images: str, tmp_path: Path) -> None:
+    """Two compose projects of compose.yaml at once, each on its own FIXSTREAM_ROUTER_PORT: both complete, and
+    each recording holds its own run only (one start and one end marker, every published message)."""
+    from container_support import compose_up, docker_api
+
+    services = ("router", "recorder", "player", "pcl_tracker-rx1-fm", "pcl_tracker-rx1-dvbt")
+    results: dict[str, subprocess.CompletedProcess[str]] = {}
+    dirs = {name: _writable_dir(tmp_path / name) for name in ("a", "b")}
+    with docker_api() as host:
+
+        def one(name: str) -> None:
+            env = clean_env(
+                FIXSTREAM_IMAGE=images,
+                FIXSTREAM_RECORDINGS=str(dirs[name]),
+                FIXSTREAM_ROUTER_PORT=str(free_tcp_port()),
+                FIXSTREAM_SCENARIO="scenarios/pcl_tracker_demo.yaml",
+            )
+            project = f"fixstream-side-{os.getpid()}-{name}"
+            results[name] = compose_up(project, (COMPOSE, ROUTER_OVERRIDE), env, host, services=services)
+
+        threads = [threading.Thread(target=one, args=(name,)) for name in dirs]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    for name, proc in results.items():
+        assert proc.returncode == 0, (name, (proc.stdout + proc.stderr)[-3000:])
+        markers = recording(dirs[name])["fixstream/scenario/pcl_tracker_demo"]
+        assert [m.event for *_, m in markers] == ["start", "end"], name
+        published, recorded = recorded_against_end_marker(dirs[name], "pcl_tracker_demo")
+        assert published > 0 and recorded == published, (name, published, recorded)
