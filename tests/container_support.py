@@ -68,9 +68,11 @@ def engine_problem() -> str | None:
     info = run(["podman", "info", "--format", "{{.Host.OCIRuntime.Name}}"], timeout=60)
     if info.returncode != 0:
         return f"podman cannot run here: {_first_line(info.stderr)}"
-    needs_debootstrap = os.environ.get("FIXSTREAM_TEST_BASE_IMAGE") is None
-    if needs_debootstrap and shutil.which("debootstrap") is None and not Path("/usr/sbin/debootstrap").exists():
-        return "debootstrap not installed (`make tools`): it builds the base image"
+    if os.environ.get("FIXSTREAM_TEST_BASE_IMAGE") is None:
+        if shutil.which("debootstrap") is None and not Path("/usr/sbin/debootstrap").exists():
+            return "debootstrap not installed (`make tools`): it builds the base image"
+        if os.geteuid() != 0:
+            return "building the base image (debootstrap) needs root; or set FIXSTREAM_TEST_BASE_IMAGE to a base image"
     return None
 
 

@@ -215,6 +215,7 @@ def run_in_containers(
 
 
 @pytest.mark.e2e
+@pytest.mark.timeout(1800)  # a cold run builds both images first (about 2.5 min here, more on a loaded machine)
 def test_container_run_records_what_fixstream_up_records(images: str, tmp_path: Path) -> None:
     reference = Reference(tmp_path / "local")  # runs alongside the containers: a second stack side by side
     t0 = time.monotonic()
