@@ -25,6 +25,10 @@ class StrictModel(BaseModel):
 #: latest time of validity a message may carry, ns: 2**62 ns is 146 years after the scenario clock's zero (or
 #: the year 2116 on the Unix clock of recorded data), and the sum of two stamps still fits a signed 64-bit integer
 MAX_STAMP_NS = 2**62
+#: latest time of validity a service takes as INPUT, ns: one day below :data:`MAX_STAMP_NS`, so that every output
+#: derived from an input (an epoch closed later, a prediction ahead) still has a valid stamp
+STAMP_HEADROOM_NS = 86_400 * 10**9
+MAX_INPUT_STAMP_NS = MAX_STAMP_NS - STAMP_HEADROOM_NS
 #: largest per-publisher sequence number (a signed 64-bit integer, so msgpack, numpy and every reader hold it)
 MAX_SEQ = 2**63 - 1
 

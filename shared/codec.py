@@ -133,19 +133,20 @@ def unpack(payload: bytes) -> Any:
         raise DecodeError("bad_msgpack", f"{type(exc).__name__}: {exc}") from None
 
 
-def header_of(obj: Any) -> tuple[str, int] | None:
-    """``(header.source, header.seq)`` of an unpacked message, or None if it has no well-formed header (the
-    validation reports why). Used for per-publisher accounting, before and whatever the message's validation."""
+def header_of(obj: Any) -> tuple[str, int, int] | None:
+    """``(header.source, header.seq, header.stamp_ns)`` of an unpacked message, or None if it has no well-formed
+    header (the validation reports why). Used for per-publisher accounting and the input stamp range, before and
+    whatever the message's validation."""
     header = obj.get("header") if type(obj) is dict else None
     if type(header) is not dict:
         return None
-    source, seq = header.get("source", ""), header.get("seq", 0)
-    if type(source) is not str or type(seq) is not int:
+    source, seq, stamp = header.get("source", ""), header.get("seq", 0), header.get("stamp_ns")
+    if type(source) is not str or type(seq) is not int or type(stamp) is not int:
         return None
-    return source, seq
+    return source, seq, stamp
 
 
-def peek_header(payload: bytes) -> tuple[str, int] | None:
+def peek_header(payload: bytes) -> tuple[str, int, int] | None:
     """:func:`header_of` the payload, or None if it does not unpack (within the limits)."""
     try:
         return header_of(unpack(payload))

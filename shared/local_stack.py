@@ -28,6 +28,8 @@ class StackAnnouncement:
     compose_file: str
     started_unix_s: float
     path: Path
+    #: a secure stack's client identity (ZenohSettings fields tls_root_ca, tls_cert, tls_key); empty when open
+    tls: dict[str, str]
 
 
 def state_dir() -> Path:
@@ -40,13 +42,20 @@ def state_dir() -> Path:
     return Path(tempfile.gettempdir()) / f"fixstream-{os.getuid()}"
 
 
-def announce(endpoint: str, compose_file: str) -> Path:
-    """Write this process's stack announcement (atomically); returns its path for :func:`withdraw`."""
+def announce(endpoint: str, compose_file: str, tls: dict[str, Path] | None = None) -> Path:
+    """Write this process's stack announcement (atomically); returns its path for :func:`withdraw`. ``tls``: the
+    read-only client identity of a secure stack, which clients with no settings of their own then use."""
     d = state_dir()
     d.mkdir(parents=True, exist_ok=True, mode=0o700)
     path = d / f"up-{os.getpid()}.json"
     tmp = path.with_suffix(".tmp")
-    body = {"endpoint": endpoint, "pid": os.getpid(), "compose_file": compose_file, "started_unix_s": time.time()}
+    body = {
+        "endpoint": endpoint,
+        "pid": os.getpid(),
+        "compose_file": compose_file,
+        "started_unix_s": time.time(),
+        "tls": {k: str(v) for k, v in (tls or {}).items()},
+    }
     tmp.write_text(json.dumps(body))
     tmp.replace(path)
     return path
@@ -77,7 +86,12 @@ def running_stacks() -> list[StackAnnouncement]:
         try:
             body = json.loads(path.read_text())
             ann = StackAnnouncement(
-                str(body["endpoint"]), int(body["pid"]), str(body["compose_file"]), float(body["started_unix_s"]), path
+                str(body["endpoint"]),
+                int(body["pid"]),
+                str(body["compose_file"]),
+                float(body["started_unix_s"]),
+                path,
+                {str(k): str(v) for k, v in dict(body.get("tls") or {}).items()},
             )
         except (OSError, ValueError, KeyError, TypeError):
             continue
@@ -90,3 +104,9 @@ def default_connect() -> list[str]:
     """The endpoint a client uses when nothing is configured: the newest live local stack, else 7447."""
     stacks = running_stacks()
     return [stacks[0].endpoint] if stacks else [DEFAULT_ENDPOINT]
+
+
+def default_tls() -> dict[str, str]:
+    """The client identity of the newest live local stack if it is secure (else empty)."""
+    stacks = running_stacks()
+    return stacks[0].tls if stacks else {}

@@ -56,6 +56,7 @@ from typing import Any, ClassVar, Literal
 import zenoh
 
 from schemas import Diagnostic, Header, Message, ScenarioMarker
+from schemas.base import MAX_INPUT_STAMP_NS
 
 from . import codec, keys
 from .errors import InputRejected
@@ -450,7 +451,13 @@ class Service:
             self.reject(key, "payload_too_large", f"{len(payload)} bytes > max_payload_bytes {self._max_payload}")
             return
         sub = self._match(key)
-        counted = sub is not None and self._account(key, payload)
+        counted = False
+        if sub is not None:
+            try:
+                counted = self._account(key, payload)
+            except InputRejected as exc:
+                self.reject(key, exc.reason, exc.detail)
+                return
         outputs = self._dispatch(key, payload, encoding, sub)
         if outputs is not None:
             self.counters.accepted += 1
@@ -459,13 +466,17 @@ class Service:
             self._end_scenario(force=False)
 
     def _account(self, key: str, payload: bytes) -> bool:
-        """Seq checks of the sample's publisher; True if it counts towards its player's end marker."""
-        if _is_scenario_key(key):
-            return False  # markers: a missing one shows as a run that ends by end_wait_s
+        """The input stamp bound, seq checks of the sample's publisher; True if the sample counts towards its
+        player's end marker. Raises InputRejected for a stamp beyond the input bound."""
         header = codec.peek_header(payload)
         if header is None:
             return False  # does not unpack: the decode reports it; it counts for nobody
-        source, seq = header
+        source, seq, stamp = header
+        if stamp > MAX_INPUT_STAMP_NS:
+            # valid as a message, but no core may take it: outputs derived from it could not be stamped
+            raise InputRejected("stamp_out_of_range", f"stamp {stamp} ns > {MAX_INPUT_STAMP_NS} ns (the input bound)")
+        if _is_scenario_key(key):
+            return False  # markers: a missing one shows as a run that ends by end_wait_s
         check = self.seq.check(key, source, seq)
         if check.event == "seq_gap":
             self.report(

@@ -24,7 +24,33 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
     if settings.listen:
         cfg.insert_json5("listen/endpoints", json.dumps(settings.listen))
     cfg.insert_json5("scouting/multicast/enabled", json.dumps(settings.multicast_scouting))
+    _insert_tls(cfg, settings)
     return cfg
+
+
+def _insert_tls(cfg: zenoh.Config, settings: ZenohSettings) -> None:
+    """Mutual TLS: the CA that every side checks the other against, and this process's certificate, used to
+    listen (a router) and to connect (every process); the certificate's common name is the identity the router's
+    access-control rules know it by."""
+    if settings.tls_root_ca is None and settings.tls_cert is None:
+        return
+    if settings.tls_root_ca is None or settings.tls_cert is None or settings.tls_key is None:
+        raise ConnectError(
+            "TLS needs FIXSTREAM_ZENOH_TLS_ROOT_CA, FIXSTREAM_ZENOH_TLS_CERT and FIXSTREAM_ZENOH_TLS_KEY together"
+        )
+    for path in (settings.tls_root_ca, settings.tls_cert, settings.tls_key):
+        if not path.is_file():
+            raise ConnectError(f"TLS file not found: {path}")
+    tls = {
+        "root_ca_certificate": str(settings.tls_root_ca),
+        "enable_mtls": True,
+        "connect_certificate": str(settings.tls_cert),
+        "connect_private_key": str(settings.tls_key),
+    }
+    if settings.mode == "router" or settings.listen:
+        tls |= {"listen_certificate": str(settings.tls_cert), "listen_private_key": str(settings.tls_key)}
+    for name, value in tls.items():
+        cfg.insert_json5(f"transport/link/tls/{name}", json.dumps(value))
 
 
 def open_session(settings: ZenohSettings | None = None) -> zenoh.Session:

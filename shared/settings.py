@@ -14,10 +14,10 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
 
 import yaml
-from pydantic import BaseModel, BeforeValidator, Field, ValidationError
+from pydantic import BaseModel, BeforeValidator, Field, ValidationError, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
-from .local_stack import default_connect
+from .local_stack import default_connect, default_tls
 
 
 def _split_list(value: Any) -> Any:
@@ -47,12 +47,29 @@ class ZenohSettings(BaseSettings):
     listen: StrList = Field(default_factory=list)
     multicast_scouting: bool = False
     config_file: Path | None = Field(default=None, description="a zenoh JSON5 config used as the base")
+    tls_root_ca: Path | None = Field(
+        default=None, description="CA certificate that signed the router's (and, with mTLS, every) certificate"
+    )
+    tls_cert: Path | None = Field(default=None, description="this process's certificate: its identity (mutual TLS)")
+    tls_key: Path | None = Field(default=None, description="the private key of tls_cert")
     connect_timeout_s: float = Field(
         default=30.0,
         ge=-1.0,
         description="how long opening a session keeps retrying its connect endpoints, s (-1: forever, 0: one try);"
         " once open, a session reconnects by itself whenever its router comes back",
     )
+
+    @model_validator(mode="after")
+    def _stack_identity(self) -> ZenohSettings:
+        """With no endpoint and no certificate configured, a client attaching to a secure local stack (fixstream up
+        --secure) takes the read-only client identity that stack announced."""
+        unset = {"connect", "tls_root_ca", "tls_cert", "tls_key"}.isdisjoint(self.model_fields_set)
+        if unset and self.mode == "client":
+            tls = default_tls()
+            if tls:
+                for name in ("tls_root_ca", "tls_cert", "tls_key"):
+                    object.__setattr__(self, name, Path(tls[name]))
+        return self
 
 
 def _file_defaults() -> dict[str, Any]:

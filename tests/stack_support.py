@@ -156,6 +156,34 @@ def as_composed(monkeypatch: pytest.MonkeyPatch, service: str, build: Callable[[
     return build()
 
 
+@contextlib.contextmanager
+def composed_env(service: str, scenario: Path | None = None) -> Iterator[None]:
+    """This process's environment as compose gives it to ``service`` (no other FIXSTREAM_* setting), and the
+    repository as the working directory, for the duration of the block."""
+    saved, cwd = dict(os.environ), Path.cwd()
+    environ = stack_env(scenario) if scenario is not None else {"PATH": os.environ.get("PATH", "")}
+    spec = load_compose(COMPOSE, environ=environ).services[service]
+    os.environ.clear()
+    os.environ.update({k: v for k, v in saved.items() if not k.startswith("FIXSTREAM_") or k == "FIXSTREAM_STATE_DIR"})
+    os.environ.update({k: v for k, v in spec.environment.items() if v is not None})
+    os.chdir(REPO)
+    try:
+        yield
+    finally:
+        os.environ.clear()
+        os.environ.update(saved)
+        os.chdir(cwd)
+
+
+def build_composed(service: str, name: str) -> Service:
+    """``services.<name>.service.build()`` as the compose service ``service`` builds it."""
+    import importlib
+
+    with composed_env(service):
+        built: Service = importlib.import_module(f"services.{name}.service").build()  # type: ignore[attr-defined]
+    return built
+
+
 # --- one service process on a real router (the bad-input tests) ---------------------------------------------------
 
 

@@ -185,10 +185,12 @@ def test_clients_attach_to_fixstream_up_with_no_flags_even_off_the_default_port(
         session = open_session(ZenohSettings())  # the library's defaults find the stack too
         try:
             pub = session.declare_publisher("fixstream/sensor/v/depth/d")
-            assert wait_until(lambda: pub.matching_status.matching and echo.poll() is None, timeout=30)
-            time.sleep(0.5)  # echo subscribes before lbl_nav and the recorder are the only ones matching
             depth = EXAMPLES["Depth"]
-            pub.put(codec.encode(depth), encoding=zenoh.Encoding(codec.encoding_of(Depth)))
+            # until echo has subscribed and printed its one message (it exits after --count 1)
+            deadline = time.monotonic() + 60
+            while echo.poll() is None and time.monotonic() < deadline:
+                pub.put(codec.encode(depth), encoding=zenoh.Encoding(codec.encoding_of(Depth)))
+                time.sleep(0.3)
             out, err = echo.communicate(timeout=60)
         finally:
             session.close()

@@ -27,6 +27,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "up": ("shared.cli.up", "run the compose.yaml stack as local processes"),
     "report": ("shared.cli.report", "evaluation report of a recording: HTML with plots + metrics JSON"),
     "foxglove": ("shared.cli.foxglove", "live bridge: Zenoh streams to the Foxglove app over WebSocket"),
+    "pki": ("shared.cli.pki", "certificates for the secure stack (mutual TLS, one identity per role)"),
 }
 
 

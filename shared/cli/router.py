@@ -8,6 +8,7 @@ import os
 import signal
 import sys
 import threading
+from pathlib import Path
 
 from ..session import open_session
 from ..settings import ZenohSettings
@@ -18,12 +19,26 @@ log = logging.getLogger("fixstream.router")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--listen", action="append", help="endpoint, e.g. tcp/127.0.0.1:7447 (repeatable)")
     parser.add_argument("--connect", action="append", default=[], help="other routers to mesh with")
+    parser.add_argument(
+        "--config",
+        type=Path,
+        help="a Zenoh JSON5 configuration to start from (e.g. config/zenoh/router-secure.json5: access control);"
+        " default: $FIXSTREAM_ZENOH_CONFIG_FILE",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     env = ZenohSettings()
     listen = args.listen or env.listen or ["tcp/127.0.0.1:7447"]
-    settings = ZenohSettings(mode="router", listen=listen, connect=args.connect, multicast_scouting=False)
+    settings = env.model_copy(
+        update={
+            "mode": "router",
+            "listen": listen,
+            "connect": args.connect,
+            "multicast_scouting": False,
+            "config_file": args.config or env.config_file,
+        }
+    )
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -44,6 +45,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the embedded router's loopback port (default: $FIXSTREAM_ROUTER_PORT or 7447 when free, else any free"
         " port; 0: any free port). Clients started with no --connect find it either way",
     )
+    parser.add_argument(
+        "--secure",
+        action="store_true",
+        help="run over mutual TLS with a certificate per identity (made for this run) and the router's access control"
+        " (config/zenoh/router-secure.json5): only the player feeds sensors and markers, only an estimator writes its"
+        " fixes; clients started with no flags attach read-only",
+    )
     parser.add_argument("--dry-run", action="store_true", help="print the local commands and exit")
     parser.add_argument("--no-color", action="store_true", help="no colours in the service prefixes")
     parser.add_argument(
@@ -69,9 +77,21 @@ def run(args: argparse.Namespace) -> int:
         for warning in project.warnings:
             console.event(f"warning: {warning}")
         names = project.select(args.services, profiles)
+        pki = None
+        if args.secure:
+            from ..stack.pki import make_pki
+
+            pki = make_pki(Path(tempfile.mkdtemp(prefix="fixstream-pki-")))
         plan = plan_stack(
-            project, names, stop_timeout=args.timeout, create_dirs=not args.dry_run, router_port=args.router_port
+            project,
+            names,
+            stop_timeout=args.timeout,
+            create_dirs=not args.dry_run,
+            router_port=args.router_port,
+            secure=pki,
         )
+        if pki is not None:
+            plan.temp_dirs.append(pki.directory)
     except (ComposeError, OSError) as exc:
         console.event(f"error: {exc}")
         return 2
@@ -85,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     announcement = None
     if plan.endpoint is not None:
-        announcement = local_stack.announce(plan.endpoint, str(project.path))
+        announcement = local_stack.announce(plan.endpoint, str(project.path), plan.client_tls)
         console.event(f"router on {plan.endpoint}; clients (fixstream echo, status, record, ...) attach with no flags")
     try:
         result = Supervisor(plan, console, ready_timeout=args.ready_timeout, drain=args.drain).run()

@@ -25,6 +25,7 @@ from pathlib import Path
 from ..session import free_tcp_port, port_free
 from .compose import ALIVE_LABEL, ComposeError, ComposeProject, ServiceSpec, Volume
 from .interpolate import parse_env_file
+from .pki import IDENTITIES, ROUTER_ACL, Pki
 
 FIXSTREAM_ARGV = [sys.executable, "-m", "shared.cli.main"]
 PYTHON_NAMES = {"python", "python3", f"python{sys.version_info.major}.{sys.version_info.minor}"}
@@ -61,6 +62,8 @@ class StackPlan:
     #: host directories of writable mounts (where recordings land)
     output_dirs: list[Path]
     temp_dirs: list[Path]
+    #: the secure stack's client identity as ZenohSettings fields (tls_root_ca, tls_cert, tls_key); {} when open
+    client_tls: dict[str, Path] = field(default_factory=dict)
 
 
 def _listen_ports(argv: list[str]) -> list[int]:
@@ -91,14 +94,17 @@ def _connects(argv: list[str]) -> list[str]:
 class _Rewriter:
     """Rewrites router endpoints to loopback and container paths to host paths in one string."""
 
-    def __init__(self, endpoints: Mapping[tuple[str, int], int], mounts: list[tuple[str, str]]) -> None:
+    def __init__(
+        self, endpoints: Mapping[tuple[str, int], int], mounts: list[tuple[str, str]], proto: str = "tcp"
+    ) -> None:
         self.endpoints = endpoints
         self.mounts = sorted(mounts, key=lambda m: len(m[0]), reverse=True)
+        self.proto = proto
 
     def endpoint(self, value: str) -> str:
         def sub(m: re.Match[str]) -> str:
             local = self.endpoints.get((m.group("host"), int(m.group("port"))))
-            return m.group(0) if local is None else f"tcp/127.0.0.1:{local}"
+            return m.group(0) if local is None else f"{self.proto}/127.0.0.1:{local}"
 
         pattern = r"(?P<proto>[a-z0-9]+)/(?P<host>[A-Za-z0-9_.\-]+):(?P<port>\d+)"
         return re.sub(pattern, sub, value)
@@ -194,13 +200,17 @@ def plan_stack(
     environ: Mapping[str, str] | None = None,
     create_dirs: bool = True,
     router_port: int | None = None,
+    secure: Pki | None = None,
 ) -> StackPlan:
     """Local processes for ``services`` (already in start order, e.g. from ``project.select``).
 
     ``stop_timeout`` overrides every service's ``stop_grace_period`` (default 10 s, as compose).
     ``create_dirs``: create missing bind sources and temporary directories for named volumes.
     ``router_port``: the embedded router's port (None: compose's published port if free, see
-    :func:`_router_port`; 0: any free port)."""
+    :func:`_router_port`; 0: any free port).
+    ``secure``: the stack runs over mutual TLS with these certificates, every process with the identity of its
+    role (:func:`identity_of`), and the router applies the repository's access control (:data:`ROUTER_ACL`)."""
+    proto = "tls" if secure is not None else "tcp"
     base_env = dict(os.environ if environ is None else environ)
     specs = [project.services[name] for name in services]
     endpoints: dict[tuple[str, int], int] = {}
@@ -211,7 +221,7 @@ def plan_stack(
             for port in _listen_ports(spec.command):
                 for host in spec.hostnames:
                     endpoints[(host, port)] = router_ports[spec.name]
-    endpoint = f"tcp/127.0.0.1:{next(iter(router_ports.values()))}" if router_ports else None
+    endpoint = f"{proto}/127.0.0.1:{next(iter(router_ports.values()))}" if router_ports else None
 
     named: dict[str, Path] = {}
     temp_dirs: list[Path] = []
@@ -220,7 +230,7 @@ def plan_stack(
     for spec in specs:
         mounts = _mount_dirs(spec, named, temp_dirs, create_dirs)
         output_dirs += [Path(h) for (t, h), v in zip(mounts, spec.volumes, strict=True) if not v.read_only]
-        rewrite = _Rewriter(endpoints, mounts)
+        rewrite = _Rewriter(endpoints, mounts, proto)
         env = {k: v for k, v in base_env.items() if not (endpoint and k.startswith("FIXSTREAM_ZENOH_"))}
         env["PYTHONUNBUFFERED"] = "1"
         if endpoint and not spec.is_zenoh_router:
@@ -236,13 +246,24 @@ def plan_stack(
                 env[key] = base_env[key]
         if spec.is_zenoh_router:
             port = router_ports[spec.name]
-            argv = [*FIXSTREAM_ARGV, "router", "--listen", f"tcp/127.0.0.1:{port}"]
+            argv = [*FIXSTREAM_ARGV, "router", "--listen", f"{proto}/127.0.0.1:{port}"]
             for peer in _connects(spec.command):
                 argv += ["--connect", rewrite.endpoint(peer)]
+            if secure is not None:
+                argv += ["--config", str(ROUTER_ACL)]
         else:
             argv = _local_argv([rewrite(a) for a in [*(spec.entrypoint or []), *spec.command]])
             if not argv:
                 raise ComposeError(f"service {spec.name}: no command (the local runner needs one)")
+        if secure is not None:
+            ident = secure.identity("router" if spec.is_zenoh_router else identity_of(argv))
+            env.update(
+                {
+                    "FIXSTREAM_ZENOH_TLS_ROOT_CA": str(secure.ca),
+                    "FIXSTREAM_ZENOH_TLS_CERT": str(ident.cert),
+                    "FIXSTREAM_ZENOH_TLS_KEY": str(ident.key),
+                }
+            )
         cwd = Path(rewrite.path(spec.working_dir)) if spec.working_dir else project.directory
         if not cwd.is_dir():
             cwd = project.directory
@@ -260,7 +281,22 @@ def plan_stack(
                 stop_timeout=_stop_timeout(spec, stop_timeout),
             )
         )
-    return StackPlan(project, processes, endpoint, list(dict.fromkeys(output_dirs)), temp_dirs)
+    client_tls: dict[str, Path] = {}
+    if secure is not None:
+        client = secure.identity("client")
+        client_tls = {"tls_root_ca": secure.ca, "tls_cert": client.cert, "tls_key": client.key}
+    return StackPlan(project, processes, endpoint, list(dict.fromkeys(output_dirs)), temp_dirs, client_tls)
+
+
+def identity_of(argv: list[str]) -> str:
+    """The secure stack's identity of a process, by what it runs: ``fixstream run <name>`` is ``<name>`` (an
+    identity the router knows), ``fixstream play`` the player, ``fixstream record`` the recorder, anything
+    else a read-only client."""
+    args = argv[len(FIXSTREAM_ARGV) :] if argv[: len(FIXSTREAM_ARGV)] == FIXSTREAM_ARGV else []
+    args = [a for a in args if not a.startswith("-")]
+    if len(args) >= 2 and args[0] == "run" and args[1] in IDENTITIES:
+        return args[1]
+    return {"play": "player", "record": "recorder"}.get(args[0] if args else "", "client")
 
 
 __all__ = ["FIXSTREAM_ARGV", "ProcessSpec", "StackPlan", "Volume", "plan_stack"]

@@ -19,9 +19,11 @@ def port_open(port: int, host: str = "127.0.0.1", timeout: float = 0.2) -> bool:
 class LivelinessWatch:
     """A client session on the loopback router that tracks ``fixstream/alive/**`` tokens."""
 
-    def __init__(self, endpoint: str, key_expr: str = "fixstream/alive/**") -> None:
+    def __init__(self, endpoint: str, key_expr: str = "fixstream/alive/**", tls: dict[str, Any] | None = None) -> None:
         self.endpoint = endpoint
         self.key_expr = key_expr
+        #: ZenohSettings TLS fields (tls_root_ca, tls_cert, tls_key) for a secure stack
+        self.tls = tls or {}
         self._alive: set[str] = set()
         self._lock = threading.Lock()
         self._session: Any = None
@@ -35,7 +37,7 @@ class LivelinessWatch:
         from ..settings import ZenohSettings
 
         self._zenoh = zenoh
-        self._session = open_session(ZenohSettings(mode="client", connect=[self.endpoint], listen=[]))
+        self._session = open_session(ZenohSettings(mode="client", connect=[self.endpoint], listen=[], **self.tls))
         self._subscriber = self._session.liveliness().declare_subscriber(self.key_expr, self._on_sample, history=True)
 
     def _on_sample(self, sample: Any) -> None:

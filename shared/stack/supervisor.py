@@ -222,7 +222,7 @@ class Supervisor:
             if spec.router_port is not None:
                 if port_open(spec.router_port):
                     p.ready = True
-                    self.console.event(f"{spec.service} ready: embedded router on tcp/127.0.0.1:{spec.router_port}")
+                    self.console.event(f"{spec.service} ready: embedded router on {self.plan.endpoint}")
                     self._open_watch(spec)
             elif spec.ready_key and self.watch is not None:
                 key = self.watch.match(spec.ready_key)
@@ -231,9 +231,13 @@ class Supervisor:
                     self.console.event(f"{spec.service} ready: {key}")
 
     def _open_watch(self, spec: ProcessSpec) -> None:
-        if self.watch is not None or self.plan.endpoint != f"tcp/127.0.0.1:{spec.router_port}":
+        if (
+            self.watch is not None
+            or self.plan.endpoint is None
+            or not self.plan.endpoint.endswith(f":{spec.router_port}")
+        ):
             return
-        watch = LivelinessWatch(self.plan.endpoint)
+        watch = LivelinessWatch(self.plan.endpoint, tls=self.plan.client_tls)
         try:
             watch.open()
         except Exception as exc:  # readiness is a convenience; the stack still runs without it

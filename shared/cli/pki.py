@@ -1,0 +1,26 @@
+"""``fixstream pki DIR``: a certificate authority and one certificate per identity of the secure stack.
+
+Writes ``DIR/ca.pem`` and ``DIR/<identity>.pem`` + ``.key`` for every identity the router's access control knows
+(router, player, recorder, coordinator, attitude, lbl_nav, pcl_tracker, rd_nav, terrain_nav, client). A process
+uses its identity with ``FIXSTREAM_ZENOH_TLS_ROOT_CA=DIR/ca.pem FIXSTREAM_ZENOH_TLS_CERT=DIR/<identity>.pem
+FIXSTREAM_ZENOH_TLS_KEY=DIR/<identity>.key`` and a ``tls/HOST:PORT`` endpoint; the router runs with
+``fixstream router --listen tls/0.0.0.0:7447 --config config/zenoh/router-secure.json5`` and its own identity.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("directory", type=Path, help="where to write the CA, certificates and keys")
+    parser.add_argument("--days", type=int, default=365, help="validity of every certificate, days (default: 365)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..stack.pki import IDENTITIES, make_pki
+
+    pki = make_pki(args.directory, days=args.days)
+    print(f"wrote {pki.ca} and certificates for {', '.join(IDENTITIES)} in {pki.directory}")
+    return 0
