@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed-stamp
 LOCK   := requirements.lock
 UV     := $(VENV)-tools/bin/uv
 
-.PHONY: install demo test lint typecheck unit bench schemas tools clean lock
+.PHONY: install demo test lint typecheck unit bench schemas tools images clean lock
 
 # The install is the lock file's exact versions, every file checked against its hash, then the project itself
 # (editable, no dependency resolution, built with the locked setuptools). `make lock` refreshes the lock.
@@ -30,17 +30,30 @@ lock:
 	  --universal --fork-strategy fewest --python-version 3.11 --no-header -q -o $(LOCK)
 	@echo "wrote $(LOCK); run make install (or make test) to use it"
 
-# System tools the tests use: a real compose implementation to validate compose.yaml (no engine needed), and
-# Debian's chromium to render the report headless.
+# System tools the tests use, Debian packages installed only when missing (one apt-get for all): docker-compose
+# validates compose.yaml and drives the container test; chromium renders the report headless; podman runs the
+# containers, catatonit is its init (compose's `init: true`), debootstrap builds the base image (make images).
+# podman also gets `default_ulimits = []` (a containers.conf drop-in): its default open-files limit is above this
+# machine's hard limit, and runc then refuses to start any container.
+TOOLS           := docker-compose chromium podman catatonit debootstrap
+CONTAINERS_CONF := /etc/containers/containers.conf.d/fixstream.conf
+
 tools:
-	@command -v docker-compose >/dev/null 2>&1 || { \
-	  echo "installing docker-compose (Debian) to validate compose.yaml"; \
-	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq docker-compose >/dev/null) \
-	  || echo "warning: could not install docker-compose; the compose validation test will fail"; }
-	@command -v chromium >/dev/null 2>&1 || { \
-	  echo "installing chromium (Debian) to render the report in the tests"; \
-	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) \
-	  || echo "warning: could not install chromium; the report rendering tests will fail"; }
+	@missing=""; for tool in $(TOOLS); do \
+	  PATH="$$PATH:/usr/sbin" command -v $$tool >/dev/null 2>&1 || missing="$$missing $$tool"; done; \
+	if [ -n "$$missing" ]; then \
+	  echo "installing (Debian):$$missing"; \
+	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null) \
+	  || echo "warning: could not install$$missing; the tests that need them will fail or skip"; fi
+	@if command -v podman >/dev/null 2>&1 && [ ! -f $(CONTAINERS_CONF) ]; then \
+	  (mkdir -p $(dir $(CONTAINERS_CONF)) && printf '%s\n' '# written by fixstream make tools (docs/stack.md)' \
+	    '[containers]' 'default_ulimits = []' > $(CONTAINERS_CONF) && echo "wrote $(CONTAINERS_CONF)") \
+	  || echo "warning: could not write $(CONTAINERS_CONF); podman may refuse to start containers"; fi
+
+# The images where none can be pulled (docs/stack.md): a Debian base from debootstrap, then the Dockerfile on it,
+# tagged fixstream:latest. Cached by what goes into them; a warm call costs seconds.
+images: install tools
+	$(PY) tests/container_support.py images
 
 # The demo: the compose stack as local processes; the recording gets Foxglove scene channels, and the run
 # ends with its report (fixstream report) and prints where the report is.

@@ -44,7 +44,8 @@ def test_repo_compose_maps_to_local_processes(tmp_path: Path) -> None:
 
     player = procs["player"]
     assert player.driver and not recorder.driver
-    assert player.argv == [*FIXSTREAM_ARGV, "play", "scenarios/demo.yaml", "--rate", "0"]
+    # a recorded run waits for the recorder whatever the scenario's wait_for says (issue 13 item 5)
+    assert player.argv == [*FIXSTREAM_ARGV, "play", "scenarios/demo.yaml", "--rate", "0", "--wait-for", "recorder/main"]
     assert player.cwd == REPO
     assert set(player.depends_on) == {"router", "recorder"}
 
@@ -55,7 +56,7 @@ def test_repo_compose_overrides(tmp_path: Path) -> None:
     plan = plan_stack(project, project.select(["player"]), environ=env, stop_timeout=3, create_dirs=False)
     procs = {p.service: p for p in plan.processes}
     assert list(procs) == ["router", "recorder", "player"]  # dependencies come along
-    assert procs["player"].argv[-3:] == ["/tmp/s.yaml", "--rate", "5"]
+    assert procs["player"].argv[-5:-2] == ["/tmp/s.yaml", "--rate", "5"]
     assert procs["recorder"].env["FIXSTREAM_RECORDER_OUT_DIR"] == str(tmp_path)
     assert procs["recorder"].stop_timeout == 3  # --timeout overrides stop_grace_period
     # the host's own Zenoh endpoint does not leak into the stack
