@@ -63,9 +63,10 @@ demo: install
 lint: install
 	$(PY) -m ruff check .
 	$(PY) -m ruff format --check .
+	$(VENV)/bin/lint-imports --no-cache
 
 typecheck: install
-	$(PY) -m mypy schemas shared services
+	$(PY) -m mypy schemas shared services tools
 
 unit: install tools
 	$(PY) -m pytest -q

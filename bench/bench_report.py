@@ -1,6 +1,6 @@
 """``fixstream report`` on a one-hour, all-estimator recording (issue 8: target under 30 s).
 
-The recording is made in-process (``shared.report.offline``, no Zenoh; a few minutes): the demo scenario
+The recording is made in-process (``tools.report.offline``, no Zenoh; a few minutes): the demo scenario
 stretched to one hour (``bench_hour``: the AUV's navigation sensors; terrain_nav's aircraft flying 3,550 s at
 80 m/s over a 2,400 x 101-cell informative map; the two PCL pairs with their five targets; the attitude radar with
 its four aircraft) through the very services of compose.yaml (``Service.run_offline``), plus an LBL vehicle on
@@ -59,7 +59,7 @@ def make_recording(tmp: Path) -> tuple[Path, Path, dict[str, Any]]:
     from services.player.scenario import load_scenario
     from shared.foxglove.convert import Converter
     from shared.foxglove.recording import FoxgloveChannels
-    from shared.report.offline import lbl_items, rd_items, scenario_feed, service_outputs, write_recording
+    from tools.report.offline import lbl_items, rd_items, scenario_feed, service_outputs, write_recording
 
     t0 = time.perf_counter()
     path = bench_scenario(tmp)
@@ -102,7 +102,7 @@ def main(argv: list[str] | None = None) -> None:
             [
                 sys.executable,
                 "-m",
-                "shared.cli.main",
+                "tools.cli.main",
                 "report",
                 str(file),
                 "--out",

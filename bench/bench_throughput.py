@@ -83,7 +83,7 @@ def recorder_status(endpoint: str) -> dict[str, object]:
 
 
 def main() -> None:
-    cmd = [sys.executable, "-m", "shared.cli.main", "--log-level", "WARNING"]
+    cmd = [sys.executable, "-m", "tools.cli.main", "--log-level", "WARNING"]
     with tempfile.TemporaryDirectory() as tmp, router() as endpoint:
         out_dir = Path(tmp) / "rec"
         scen = Path(tmp) / "bench.yaml"

@@ -30,7 +30,7 @@ from shared.settings import ZenohSettings
 from .stack import REPO
 
 #: ``fixstream`` as this interpreter runs it, logging warnings only
-CLI = [sys.executable, "-m", "shared.cli.main", "--log-level", "WARNING"]
+CLI = [sys.executable, "-m", "tools.cli.main", "--log-level", "WARNING"]
 #: the player's last log line: messages published and its own time
 PLAYER_LINE = re.compile(r"published (\d+) messages on \d+ keys in ([0-9.]+) s")
 _TICK = os.sysconf("SC_CLK_TCK")

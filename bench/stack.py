@@ -17,7 +17,7 @@ REPO = Path(__file__).resolve().parent.parent
 def router() -> Iterator[str]:
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "shared.cli.main", "router", "--listen", endpoint],
+        [sys.executable, "-m", "tools.cli.main", "router", "--listen", endpoint],
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
         text=True,

@@ -13,8 +13,9 @@ import numpy as np
 import numpy.typing as npt
 
 from schemas import Truth
-from services.player.simulators import Event
 from shared import keys
+
+from .events import Event
 
 F64 = npt.NDArray[np.float64]
 

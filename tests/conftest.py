@@ -20,7 +20,7 @@ os.environ.setdefault("FIXSTREAM_STATE_DIR", tempfile.mkdtemp(prefix="fixstream-
 
 def fixstream_cmd(*args: str) -> list[str]:
     """The installed console script run with this interpreter's environment."""
-    return [sys.executable, "-m", "shared.cli.main", *args]
+    return [sys.executable, "-m", "tools.cli.main", *args]
 
 
 @pytest.fixture()

@@ -31,7 +31,7 @@ from shared.mcap_io import decode_record, iter_records, recording_files
 from shared.service import Output, Service
 from shared.session import open_session
 from shared.settings import ZenohSettings
-from shared.stack import load_compose
+from tools.stack import load_compose
 
 COMPOSE = REPO / "compose.yaml"
 

@@ -32,7 +32,7 @@ from services.attitude.simulation import fly, paper_plan, scan_times, true_spher
 from services.attitude.simulator import enu_to_nue
 from services.player.scenario import Scenario, ScenarioError, load_scenario
 from services.player.timeline import build, scenario_events
-from shared.montecarlo import jsonable, run_once
+from tools.montecarlo import jsonable, run_once
 
 SCENARIOS = REPO / "scenarios"
 PRESETS = {"attitude_9s15": "9S15", "attitude_vostok3d": "Vostok3D", "attitude_19zh6": "19Zh6"}

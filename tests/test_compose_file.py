@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 import yaml
 
-from shared.stack import load_compose
+from tools.stack import load_compose
 
 REPO = Path(__file__).resolve().parent.parent
 COMPOSE = REPO / "compose.yaml"
@@ -135,7 +135,7 @@ def test_missing_required_variable_fails_in_both(tmp_path: Path) -> None:
     path.write_text("services:\n  probe:\n    image: busybox\n    command: ['${T_NEEDED:?set T_NEEDED}']\n")
     proc = docker_compose("-f", str(path), "config", "-q", env=clean_env(), cwd=tmp_path)
     assert proc.returncode != 0 and "set T_NEEDED" in proc.stderr
-    from shared.stack import ComposeError
+    from tools.stack import ComposeError
 
     with pytest.raises(ComposeError, match="set T_NEEDED"):
         load_compose(path, environ=clean_env())

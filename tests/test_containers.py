@@ -32,7 +32,7 @@ from conftest import REPO, fixstream_cmd
 
 from shared.mcap_io import decode_record, iter_records
 from shared.session import free_tcp_port
-from shared.stack.readiness import port_open
+from tools.stack.readiness import port_open
 
 COMPOSE = REPO / "compose.yaml"
 ROUTER_OVERRIDE = REPO / "compose.fixstream-router.yaml"

@@ -42,7 +42,7 @@ from shared.foxglove.convert import N_SIGMA, POINT_SIZE_M, Converter, Origin, el
 from shared.foxglove.frames import NOMINAL_VERTICAL_VAR_M2, FrameContext
 from shared.foxglove.recording import FoxgloveChannels
 from shared.mcap_io import decode_record, iter_records, recording_files
-from shared.report.offline import lbl_items, rd_items, write_recording
+from tools.report.offline import lbl_items, rd_items, write_recording
 
 ORIGIN = {"lat_deg": 43.05, "lon_deg": 131.88, "alt_m": 12.0}
 R_EARTH = 6_371_008.8

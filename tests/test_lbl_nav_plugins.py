@@ -27,7 +27,8 @@ from services.lbl_nav.simulator import sensor_keys, sim_params
 from services.player.scenario import ScenarioError, load_scenario, parse_scenario
 from services.player.simulators import Event, child_seed
 from services.player.timeline import build, run_seed, scenario_events
-from shared import keys, montecarlo
+from shared import keys
+from tools import montecarlo
 
 NS = 1_000_000_000
 SCENARIOS = {name: REPO / "scenarios" / f"lbl_nav_{name}.yaml" for name in ("s1", "s2", "s3", "demo")}

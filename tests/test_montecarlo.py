@@ -22,7 +22,8 @@ from services.player.scenario import ScenarioError, load_scenario, parse_scenari
 from services.player.sensor_stats import error_series
 from services.player.simulators import Event
 from services.player.timeline import build, player_source, scenario_events, stamp
-from shared import codec, keys, montecarlo
+from shared import codec, keys
+from tools import montecarlo
 
 
 def _small(name: str = "mc", duration_s: float = 20.0) -> dict[str, Any]:

@@ -21,9 +21,9 @@ from conftest import REPO, wait_until
 
 from schemas import ScenarioMarker
 from shared.mcap_io import decode_record, iter_records
-from shared.stack import load_compose, plan_stack
-from shared.stack.plan import ProcessSpec
-from shared.stack.readiness import port_open
+from tools.stack import load_compose, plan_stack
+from tools.stack.plan import ProcessSpec
+from tools.stack.readiness import port_open
 
 #: like the four PCL scenarios: the recorder is not in wait_for (nothing is)
 SCENARIO = """\

@@ -56,7 +56,7 @@ from services.rd_nav.core import RdNavCore
 from services.rd_nav.service import cycle_key, ekf_key, fix_key, output_key
 from shared import keys
 from shared.errors import InputRejected
-from shared.montecarlo import jsonable
+from tools.montecarlo import jsonable
 
 pytestmark = pytest.mark.e2e
 

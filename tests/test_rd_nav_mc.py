@@ -25,7 +25,7 @@ from services.player.scenario import load_scenario
 from services.player.simulators import Event
 from services.rd_nav import mc as rd_mc
 from services.rd_nav.service import RdNavService, RdNavSettings
-from shared.montecarlo import jsonable, run_montecarlo, run_once
+from tools.montecarlo import jsonable, run_montecarlo, run_once
 
 SCENARIOS = REPO / "scenarios"
 

@@ -18,7 +18,7 @@ from services.player.simulators import Event
 from services.player.timeline import scenario_events
 from services.recorder.writer import RotatingMcapWriter
 from shared import codec, keys
-from shared.cli.main import main
+from tools.cli.main import main
 
 pytestmark = pytest.mark.e2e
 

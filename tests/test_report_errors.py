@@ -15,7 +15,7 @@ from mcap.writer import CompressionType, Writer
 from schemas import Header, Truth
 from services.recorder.writer import RotatingMcapWriter
 from shared import keys
-from shared.report.offline import T0_NS, marker
+from tools.report.offline import T0_NS, marker
 
 
 def report(*args: str) -> subprocess.CompletedProcess[str]:

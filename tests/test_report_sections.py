@@ -1,7 +1,7 @@
 """The report's LBL and group-navigation sections on recordings built from their cores (issue 8).
 
 Their services and player plugins are being written; until then a recording of each is made in-process
-(:mod:`shared.report.offline`: the digest's S2 LBL run and the group's fleet run with the coordinator core in
+(:mod:`tools.report.offline`: the digest's S2 LBL run and the group's fleet run with the coordinator core in
 the loop, written with the recorder's writer, publishers named as the services will be). The sections' headline
 numbers are checked against the cores' own evaluation code on the same runs (``services.lbl_nav.experiment``,
 ``services.rd_nav.inprocess``), which shares nothing with the report; the page renders in headless Chromium.
@@ -20,8 +20,8 @@ from test_report import assert_plausible_screenshot, render
 from services.lbl_nav import simulation as lbl_sim
 from services.lbl_nav.experiment import run_core as lbl_run_core
 from services.lbl_nav.experiment import scenario_config
-from shared.report import make_report
-from shared.report.offline import lbl_items, marker, rd_items, write_recording
+from tools.report import make_report
+from tools.report.offline import lbl_items, marker, rd_items, write_recording
 
 RD_SECONDS = 900.0
 

@@ -11,7 +11,7 @@ from conftest import fixstream_cmd
 from test_scenario_files import REPO, nav_scenario, write_scenario
 
 from services.player.scenario import ScenarioError, load_scenario, resolve
-from shared.cli.main import main
+from tools.cli.main import main
 
 
 def _error(tmp_path: Path, doc: Any) -> str:

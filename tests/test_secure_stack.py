@@ -27,7 +27,7 @@ from shared import codec, keys, local_stack
 from shared.mcap_io import iter_records, recording_files
 from shared.session import free_tcp_port, open_session, query_all
 from shared.settings import ZenohSettings
-from shared.stack.pki import ROUTER_ACL, Pki, make_pki
+from tools.stack.pki import ROUTER_ACL, Pki, make_pki
 
 pytestmark = pytest.mark.e2e
 

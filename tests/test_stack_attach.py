@@ -215,7 +215,7 @@ def test_clients_attach_to_fixstream_up_with_no_flags_even_off_the_default_port(
 
 
 def test_the_embedded_router_takes_the_published_port_when_it_is_free(tmp_path: Path) -> None:
-    from shared.stack import load_compose, plan_stack
+    from tools.stack import load_compose, plan_stack
 
     (tmp_path / "compose.yaml").write_text(COMPOSE)
     port = free_tcp_port()

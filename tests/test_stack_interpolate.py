@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from shared.stack.interpolate import InterpolationError, interpolate, interpolate_tree, parse_env_file
+from tools.stack.interpolate import InterpolationError, interpolate, interpolate_tree, parse_env_file
 
 ENV = {"SET": "value", "EMPTY": "", "OTHER": "other"}
 

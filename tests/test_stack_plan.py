@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from shared.stack import ComposeError, load_compose, plan_stack
-from shared.stack.compose import find_compose_file, parse_duration
-from shared.stack.plan import FIXSTREAM_ARGV
+from tools.stack import ComposeError, load_compose, plan_stack
+from tools.stack.compose import find_compose_file, parse_duration
+from tools.stack.plan import FIXSTREAM_ARGV
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -16,8 +16,8 @@ from typing import Any
 import pytest
 from conftest import REPO, fixstream_cmd, wait_until
 
-from shared.stack import Supervisor, load_compose, plan_stack
-from shared.stack.console import Console
+from tools.stack import Supervisor, load_compose, plan_stack
+from tools.stack.console import Console
 
 PROBE = """
 import json, os, signal, sys, time
@@ -311,7 +311,7 @@ def test_dry_run_prints_the_local_commands() -> None:
     )
     assert proc.returncode == 0, proc.stderr
     assert "router: cd" in proc.stdout and " router --listen tcp/127.0.0.1:" in proc.stdout
-    assert "shared.cli.main run recorder" in proc.stdout and "FIXSTREAM_RECORDER_OUT_DIR=" in proc.stdout
+    assert "tools.cli.main run recorder" in proc.stdout and "FIXSTREAM_RECORDER_OUT_DIR=" in proc.stdout
 
 
 @pytest.mark.parametrize("bad", ["services:\n  a:\n    command: ['${NEED:?please set NEED}']\n", "services: 3\n"])

@@ -23,7 +23,8 @@ from services.terrain_nav.mapfiles import write_maps
 from services.terrain_nav.maps import ReferenceMap, load_npy
 from services.terrain_nav.simulation import simulate
 from services.terrain_nav.simulator import TerrainFlightParams, check_same_map, generated_world
-from shared import keys, montecarlo
+from shared import keys
+from tools import montecarlo
 
 SHIPPED = sorted(p for p in scenario_files(REPO / "scenarios") if p.name.startswith("terrain_nav_"))
 INS_KEY, RA_KEY = "fixstream/sensor/tan1/ins/ins0", "fixstream/sensor/tan1/radalt/ra0"

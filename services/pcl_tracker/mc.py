@@ -1,4 +1,4 @@
-"""Monte-Carlo plugin of the PCL tracker for ``fixstream mc`` (see ``shared/montecarlo.py``).
+"""Monte-Carlo plugin of the PCL tracker for ``fixstream mc`` (see ``tools/montecarlo.py``).
 
 Each run feeds the events of the tracker's receiver–illuminator pair (``fixstream/sensor/<rx>/pcl/<tx>``,
 exactly what the player publishes, in order) to :class:`~services.pcl_tracker.core.PclTracker`, flushes it

@@ -242,6 +242,27 @@ def scenario_files(directory: str | Path) -> list[Path]:
     return sorted(p for p in d.iterdir() if p.suffix in SUFFIXES and p.is_file()) if d.is_dir() else []
 
 
+def load_by_name(name: str, directory: str | Path | None = None) -> Scenario:
+    """The scenario called ``name`` in the scenario directory, for names that arrive over the network (a start
+    marker's): a bare name only, looked up only inside ``directory`` (never a path, so a marker naming
+    ``/etc/passwd`` or ``../x`` opens nothing). ScenarioError otherwise."""
+    if not name or any(c in name for c in "/\\\0") or name.startswith(".") or len(name) > 256:
+        raise ScenarioError(f"{name!r} is not a scenario name (names only, no paths)")
+    d = Path(directory) if directory is not None else default_dir()
+    for suffix in SUFFIXES:
+        candidate = d / f"{name}{suffix}"
+        if candidate.is_file():
+            return load_scenario(candidate)
+    for f in scenario_files(d):
+        try:
+            data = yaml.safe_load(f.read_text())
+        except (OSError, yaml.YAMLError):
+            continue
+        if isinstance(data, dict) and data.get("name") == name:
+            return load_scenario(f)
+    raise ScenarioError(f"no scenario named {name!r} in {d}/")
+
+
 def resolve(name_or_path: str | Path, directory: str | Path | None = None) -> Path:
     """A scenario file from a path, a file stem in ``directory`` or a scenario ``name`` in ``directory``."""
     p = Path(name_or_path)

@@ -29,6 +29,7 @@ from collections.abc import Iterable
 from typing import Any, ClassVar, cast
 
 from schemas import Message
+from services.player.scenario import load_by_name
 from shared import codec
 from shared.foxglove.convert import Converter
 from shared.foxglove.recording import FoxgloveChannels
@@ -68,7 +69,9 @@ class RecorderService(Service):
         #: the Foxglove scene and map channels (FIXSTREAM_RECORDER_FOXGLOVE), converted from what is written
         self.foxglove: FoxgloveChannels | None = None
         if settings.foxglove:
-            self.foxglove = FoxgloveChannels(Converter(scenarios_dir=settings.scenarios_dir))
+            self.foxglove = FoxgloveChannels(
+                Converter(scenarios_dir=settings.scenarios_dir, scenario_loader=load_by_name)
+            )
 
     # ----- Service hooks ------------------------------------------------------------------------
     def subscriptions(self) -> list[Subscription]:

@@ -1,4 +1,4 @@
-"""Monte-Carlo plugin of ``fixstream mc`` (see :mod:`shared.montecarlo`): the core over the player's events.
+"""Monte-Carlo plugin of ``fixstream mc`` (see :mod:`tools.montecarlo`): the core over the player's events.
 
 For each run, the reference map is rebuilt exactly as the run's ``terrain_nav`` simulator built it (its
 parameters from the scenario, the terrain seed from its ``Truth`` extras, ``map_file`` if named), the

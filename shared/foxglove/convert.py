@@ -32,7 +32,7 @@ from __future__ import annotations
 import logging
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -214,10 +214,14 @@ class Converter:
         ctx: FrameContext | None = None,
         origin: Origin | None = None,
         scenarios_dir: str | os.PathLike[str] | None = None,
+        scenario_loader: Callable[[str, Path | None], Any] | None = None,
     ) -> None:
         self.ctx = ctx or FrameContext()
         self.origin = origin
         self.scenarios_dir = Path(scenarios_dir) if scenarios_dir is not None else None
+        #: (scenario name, scenarios directory) -> the Scenario, raising ValueError when there is none; given by
+        #: the process that knows scenario files (the player's loader), so that this runtime module names no service
+        self.scenario_loader = scenario_loader
         self._fixed = ctx is not None or origin is not None
         self.scenario_name: str | None = None
 
@@ -234,12 +238,12 @@ class Converter:
         """A start marker: load its scenario's frames and origin (unless fixed at construction)."""
         if self._fixed or marker.event != "start" or marker.scenario == self.scenario_name:
             return
-        from services.player.scenario import ScenarioError, load_scenario, resolve
-
         self.scenario_name = marker.scenario
         try:
-            scenario = load_scenario(resolve(marker.scenario, self.scenarios_dir))
-        except ScenarioError as exc:
+            if self.scenario_loader is None:
+                raise ValueError("no scenario loader")
+            scenario = self.scenario_loader(marker.scenario, self.scenarios_dir)
+        except ValueError as exc:
             log.warning("foxglove: scenario %s not found (%s): default frames, no map channels", marker.scenario, exc)
             self.ctx, self.origin = FrameContext(), None
             return

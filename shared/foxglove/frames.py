@@ -19,7 +19,7 @@ anything else                taken as ENU                                       
 The radar sites' positions come from the scenario's ``attitude`` simulators (``site_position_m``); without a
 scenario they are taken at the origin. A covariance transforms with the same axis permutation and signs.
 
-The report (:mod:`shared.report`) plots these estimates against truth; the Foxglove conversion
+The report (:mod:`tools.report`) plots these estimates against truth; the Foxglove conversion
 (:mod:`shared.foxglove.convert`) draws them as scene entities and map fixes.
 """
 

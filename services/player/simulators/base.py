@@ -21,22 +21,15 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, NamedTuple, Protocol, runtime_checkable
+from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from schemas import Header, Message
+from shared.events import Event
 
 NS_PER_S = 1_000_000_000
-
-
-class Event(NamedTuple):
-    """One message to publish: stamp on the simulated clock (ns), key expression and the message."""
-
-    stamp_ns: int
-    key: str
-    msg: Message
 
 
 class SimParams(BaseModel):

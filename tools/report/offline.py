@@ -71,7 +71,7 @@ def service_outputs(
     overrides variables of the service's compose environment."""
     import zenoh
 
-    from shared.stack import load_compose
+    from tools.stack import load_compose
 
     project = load_compose(Path(compose_file))
     spec = project.services[compose_service]

@@ -10,8 +10,8 @@ import sys
 import threading
 from pathlib import Path
 
-from ..session import open_session
-from ..settings import ZenohSettings
+from shared.session import open_session
+from shared.settings import ZenohSettings
 
 log = logging.getLogger("fixstream.router")
 

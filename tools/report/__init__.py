@@ -87,7 +87,7 @@ def _report(
     t0: float,
     workers: int | None,
 ) -> ReportResult:
-    from shared.montecarlo import jsonable
+    from tools.montecarlo import jsonable
 
     from .data import run_data
     from .html import render_html

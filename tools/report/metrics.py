@@ -18,7 +18,7 @@ import importlib
 import traceback
 from typing import Any
 
-from shared.montecarlo import jsonable
+from tools.montecarlo import jsonable
 
 from .data import RunData
 

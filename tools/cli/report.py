@@ -32,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import sys
 
-    from shared.report import ReportError, make_report
+    from tools.report import ReportError, make_report
 
     try:
         result = make_report(

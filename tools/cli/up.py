@@ -62,7 +62,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .. import local_stack
+    from shared import local_stack
+
     from ..stack import ComposeError, Supervisor, find_compose_file, load_compose, plan_stack
     from ..stack.console import Console
 
@@ -129,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _report(recordings: list[Path], console: Console) -> Path | None:
     """``fixstream report`` of the run's recording; prints where it is (None: it failed, the reason printed)."""
-    from shared.report import ReportError, make_report
+    from tools.report import ReportError, make_report
 
     event = console.event
     try:

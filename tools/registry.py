@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import importlib
 
-from .errors import StartupError
-from .service import Service
+from shared.errors import StartupError
+from shared.service import Service
 
 
 def load_service(name: str) -> Service:

@@ -33,8 +33,8 @@ class LivelinessWatch:
     def open(self) -> None:
         import zenoh
 
-        from ..session import open_session
-        from ..settings import ZenohSettings
+        from shared.session import open_session
+        from shared.settings import ZenohSettings
 
         self._zenoh = zenoh
         self._session = open_session(ZenohSettings(mode="client", connect=[self.endpoint], listen=[], **self.tls))

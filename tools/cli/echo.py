@@ -18,7 +18,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def format_line(key: str, payload: bytes, encoding: str, as_json: bool) -> str:
     import json
 
-    from .. import codec
+    from shared import codec
 
     try:
         msg = codec.decode(payload, encoding)
@@ -37,7 +37,8 @@ def run(args: argparse.Namespace) -> int:
     import signal
     import time
 
-    from ..session import open_session
+    from shared.session import open_session
+
     from .common import zenoh_settings_from
 
     lines: queue.Queue[str] = queue.Queue()

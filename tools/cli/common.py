@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..settings import ZenohSettings
+from shared.settings import ZenohSettings
 
 #: a command-line client waits less for its router than a service does (a user is waiting at the prompt)
 CLIENT_CONNECT_TIMEOUT_S = 5.0

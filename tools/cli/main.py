@@ -1,4 +1,4 @@
-"""``fixstream`` entry point. Each sub-command lives in ``shared/cli/<name>.py`` with
+"""``fixstream`` entry point. Each sub-command lives in ``tools/cli/<name>.py`` with
 ``add_arguments(parser)`` and ``run(args) -> int``; heavy imports happen inside ``run``."""
 
 from __future__ import annotations
@@ -11,23 +11,23 @@ import sys
 
 from pydantic import ValidationError
 
-from ..errors import StartupError
-from ..settings import settings_error_message
+from shared.errors import StartupError
+from shared.settings import settings_error_message
 
 #: sub-command -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
-    "router": ("shared.cli.router", "run a Zenoh router (the embedded default for local stacks)"),
-    "run": ("shared.cli.run", "run a service by name (recorder, lbl_nav, ...)"),
-    "play": ("shared.cli.play", "play a scenario YAML or replay an MCAP recording onto Zenoh"),
-    "record": ("shared.cli.record", "record Zenoh streams to MCAP"),
-    "echo": ("shared.cli.echo", "print decoded messages on a key expression"),
-    "status": ("shared.cli.status", "query every service's status"),
-    "scenarios": ("shared.cli.scenarios", "list, show and validate scenario files"),
-    "mc": ("shared.cli.mc", "Monte-Carlo runs of a scenario in-process, metrics to JSON"),
-    "up": ("shared.cli.up", "run the compose.yaml stack as local processes"),
-    "report": ("shared.cli.report", "evaluation report of a recording: HTML with plots + metrics JSON"),
-    "foxglove": ("shared.cli.foxglove", "live bridge: Zenoh streams to the Foxglove app over WebSocket"),
-    "pki": ("shared.cli.pki", "certificates for the secure stack (mutual TLS, one identity per role)"),
+    "router": ("tools.cli.router", "run a Zenoh router (the embedded default for local stacks)"),
+    "run": ("tools.cli.run", "run a service by name (recorder, lbl_nav, ...)"),
+    "play": ("tools.cli.play", "play a scenario YAML or replay an MCAP recording onto Zenoh"),
+    "record": ("tools.cli.record", "record Zenoh streams to MCAP"),
+    "echo": ("tools.cli.echo", "print decoded messages on a key expression"),
+    "status": ("tools.cli.status", "query every service's status"),
+    "scenarios": ("tools.cli.scenarios", "list, show and validate scenario files"),
+    "mc": ("tools.cli.mc", "Monte-Carlo runs of a scenario in-process, metrics to JSON"),
+    "up": ("tools.cli.up", "run the compose.yaml stack as local processes"),
+    "report": ("tools.cli.report", "evaluation report of a recording: HTML with plots + metrics JSON"),
+    "foxglove": ("tools.cli.foxglove", "live bridge: Zenoh streams to the Foxglove app over WebSocket"),
+    "pki": ("tools.cli.pki", "certificates for the secure stack (mutual TLS, one identity per role)"),
 }
 
 

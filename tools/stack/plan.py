@@ -4,7 +4,7 @@
   tcp/127.0.0.1:<port>``: the port compose publishes (``$FIXSTREAM_ROUTER_PORT``, default 7447) when it is
   free, else a free one (its ``--connect`` endpoints to other routers are rewritten too).
 * Every other service runs its ``entrypoint + command`` locally: ``fixstream`` is this interpreter's
-  ``python -m shared.cli.main`` and ``python``/``python3`` is this interpreter.
+  ``python -m tools.cli.main`` and ``python``/``python3`` is this interpreter.
 * Endpoints ``<proto>/<router host>:<container port>`` in environment values and arguments become the
   loopback router, and ``FIXSTREAM_ZENOH_CONNECT`` defaults to it.
 * Container paths under a bind volume's target become the host path (created if missing); named and
@@ -22,12 +22,13 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..session import free_tcp_port, port_free
+from shared.session import free_tcp_port, port_free
+
 from .compose import ALIVE_LABEL, ComposeError, ComposeProject, ServiceSpec, Volume
 from .interpolate import parse_env_file
 from .pki import IDENTITIES, ROUTER_ACL, Pki
 
-FIXSTREAM_ARGV = [sys.executable, "-m", "shared.cli.main"]
+FIXSTREAM_ARGV = [sys.executable, "-m", "tools.cli.main"]
 PYTHON_NAMES = {"python", "python3", f"python{sys.version_info.major}.{sys.version_info.minor}"}
 DEFAULT_ROUTER_PORT = 7447
 #: interpolation variable with the router port compose publishes on the host

@@ -18,7 +18,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import json
 
-    from ..session import open_session, query_all
+    from shared.session import open_session, query_all
+
     from .common import zenoh_settings_from
 
     session = open_session(zenoh_settings_from(args))

@@ -37,13 +37,14 @@ def run(args: argparse.Namespace) -> int:
 
     import foxglove
 
-    from shared.foxglove.bridge import Bridge
+    from services.player.scenario import load_by_name
     from shared.foxglove.convert import Converter
+    from shared.session import open_session
+    from tools.foxglove_bridge import Bridge
 
-    from ..session import open_session
     from .common import zenoh_settings_from
 
-    converter = Converter(scenarios_dir=args.scenarios_dir)
+    converter = Converter(scenarios_dir=args.scenarios_dir, scenario_loader=load_by_name)
     if args.scenario:
         from services.player.scenario import ScenarioError, load_scenario, resolve
 

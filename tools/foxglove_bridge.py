@@ -25,8 +25,7 @@ from typing import Any
 
 from schemas import Message
 from shared import codec
-
-from .convert import Converter
+from shared.foxglove.convert import Converter
 
 log = logging.getLogger("fixstream.foxglove")
 

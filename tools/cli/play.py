@@ -41,7 +41,8 @@ def run(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
-    from ..session import open_session
+    from shared.session import open_session
+
     from .common import zenoh_settings_from
 
     if args.rate < 0:

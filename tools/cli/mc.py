@@ -26,8 +26,7 @@ def run(args: argparse.Namespace) -> int:
 
     from services.player.scenario import ScenarioError, load_scenario, resolve
     from services.player.timeline import SimulationError
-
-    from .. import montecarlo
+    from tools import montecarlo
 
     if args.runs < 1 or (args.workers is not None and args.workers < 1):
         print("fixstream mc: --runs and --workers must be >= 1", file=sys.stderr)

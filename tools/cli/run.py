@@ -12,9 +12,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
-    from ..errors import StartupError
+    from shared.errors import StartupError
+    from shared.settings import settings_error_message
+
     from ..registry import load_service
-    from ..settings import settings_error_message
 
     try:
         service = load_service(args.name)
