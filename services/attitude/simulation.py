@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.integrate import solve_ivp
+from scipy.interpolate import CubicSpline
 
 from schemas import Header, Message, RadarPlot, Truth
 
@@ -27,12 +28,56 @@ NS = 1_000_000_000
 
 @dataclass(frozen=True)
 class Segment:
-    """A manoeuvre segment: rates ramp linearly from the first to the second value over the segment."""
+    """A manoeuvre segment: rates ramp linearly from the first to the second value over the segment.
+
+    Either kinematic rates (``turn_rate_dps``, ``pitch_rate_dps``) or, when ``bank_deg`` or ``load_factor`` is
+    given, the coordinated-flight equations of §1.6 drive the path (both ramped linearly, ``None`` = not used):
+
+        V theta_dot = n g cos(gamma) - g cos(theta),     V psi_dot cos(theta) = n g sin(gamma)
+
+    with ``load_factor`` n (default: the n that keeps theta constant, n = cos(theta) / cos(gamma)) and bank
+    gamma (``bank_deg``, default 0). The kinematic rates are added on top. ``gravity_speed`` adds
+    dV/dt = -g sin(theta) (an unpowered pull-up or zero-g parabola) to ``accel_mps2``.
+    """
 
     duration_s: float
     turn_rate_dps: tuple[float, float] = (0.0, 0.0)  # d(psi)/dt, deg/s, + clockwise seen from above
     pitch_rate_dps: tuple[float, float] = (0.0, 0.0)  # d(theta)/dt of the flight-path angle, deg/s
     accel_mps2: float = 0.0  # dV/dt, m/s^2
+    bank_deg: tuple[float, float] | None = None  # coordinated bank gamma, deg, + right wing down
+    load_factor: tuple[float, float] | None = None  # normal load factor n (lift / weight)
+    gravity_speed: bool = False  # dV/dt also gets -g sin(theta)
+
+
+@dataclass(frozen=True)
+class Wander:
+    """Small random manoeuvres of a flying aircraft (light turbulence, pilot corrections): independent
+    Ornstein-Uhlenbeck accelerations across the path (horizontal), normal to it (vertical) and along it, each of
+    standard deviation ``sigma_*_mps2`` and correlation time ``tau_s``, sampled every ``step_s`` and interpolated
+    linearly; the realisation is fixed by ``seed``. The jerk of an OU acceleration has the spectral density
+    2 sigma^2 / tau, which a random-jerk model of period T matches with sigma_j^2 = 2 sigma^2 / (tau T)
+    (sigma = 0.2 m/s^2, tau = 20 s, T = 5 s: sigma_j = 0.028 m/s^3, the digest's 0.03)."""
+
+    sigma_lat_mps2: float = 0.2
+    sigma_vert_mps2: float = 0.2
+    sigma_long_mps2: float = 0.05
+    tau_s: float = 20.0
+    seed: int = 0
+    step_s: float = 1.0
+
+    def sample(self, t_end_s: float) -> tuple[F64, F64]:
+        """(grid times (n,), accelerations (n, 3) = [lateral, vertical, longitudinal]) over [0, t_end_s]."""
+        n = math.ceil(t_end_s / self.step_s) + 2
+        t = np.arange(n, dtype=np.float64) * self.step_s
+        rng = np.random.default_rng(self.seed)
+        sig = np.array([self.sigma_lat_mps2, self.sigma_vert_mps2, self.sigma_long_mps2])
+        phi = math.exp(-self.step_s / self.tau_s)
+        e = rng.standard_normal((n, 3)) * sig * math.sqrt(1.0 - phi * phi)
+        a = np.empty((n, 3))
+        a[0] = rng.standard_normal(3) * sig  # stationary start
+        for k in range(1, n):
+            a[k] = phi * a[k - 1] + e[k]
+        return t, a
 
 
 @dataclass(frozen=True)
@@ -44,6 +89,7 @@ class FlightPlan:
     psi_deg: float
     theta_deg: float = 0.0
     segments: tuple[Segment, ...] = ()
+    wander: Wander | None = None  # small random manoeuvres on top of the segments (None: exact segments)
 
 
 @dataclass(frozen=True)
@@ -118,33 +164,63 @@ def fly(plan: FlightPlan, times_s: Sequence[float] | F64, g: float = G_TRUTH_MPS
     t_end = max(float(t.max()), bounds[-1]) + 1.0
     segs = [*plan.segments, Segment(duration_s=t_end - bounds[-1])]
     bounds.append(t_end)
+    wander = None
+    if plan.wander is not None:
+        grid, acc_w = plan.wander.sample(t_end)
+        wander = CubicSpline(grid, acc_w, axis=0)
 
-    def rates(k: int, tt: F64 | float) -> tuple[F64 | float, F64 | float, float]:
+    def ramp(pair: tuple[float, float], f: F64 | float) -> F64 | float:
+        return pair[0] + f * (pair[1] - pair[0])
+
+    def rates(k: int, tt: F64 | float, speed: F64 | float, theta: F64 | float) -> tuple[F64, F64, F64]:
+        """(d psi/dt, d theta/dt, dV/dt) of segment k at time tt, speed and flight-path angle (arrays or scalars)."""
         seg = segs[k]
         f = (np.asarray(tt) - bounds[k]) / seg.duration_s
-        w = math.radians(seg.turn_rate_dps[0]) + f * math.radians(seg.turn_rate_dps[1] - seg.turn_rate_dps[0])
-        q = math.radians(seg.pitch_rate_dps[0]) + f * math.radians(seg.pitch_rate_dps[1] - seg.pitch_rate_dps[0])
-        return w, q, seg.accel_mps2
+        w = np.radians(ramp(seg.turn_rate_dps, f))
+        q = np.radians(ramp(seg.pitch_rate_dps, f))
+        vdot = seg.accel_mps2 - (g * np.sin(theta) if seg.gravity_speed else 0.0)
+        ct = np.cos(theta)
+        if seg.bank_deg is not None or seg.load_factor is not None:
+            bank = np.radians(ramp(seg.bank_deg, f)) if seg.bank_deg is not None else 0.0
+            n = ramp(seg.load_factor, f) if seg.load_factor is not None else ct / np.cos(bank)
+            w = w + n * g * np.sin(bank) / (speed * ct)
+            q = q + (n * g * np.cos(bank) - g * ct) / speed
+        if wander is not None:
+            lat, vert, lon = np.moveaxis(np.asarray(wander(tt)), -1, 0)
+            w = w + lat / (speed * ct)
+            q = q + vert / speed
+            vdot = vdot + lon
+        return np.asarray(w), np.asarray(q), np.asarray(vdot)
 
     y = np.array([*plan.p0_m, plan.speed_mps, psi0, th0], dtype=np.float64)
     out = np.empty((t.size, 6))
     seg_of = np.clip(np.searchsorted(bounds, t, side="right") - 1, 0, len(segs) - 1)
+    max_step = plan.wander.step_s if plan.wander is not None else np.inf
     for k in range(len(segs)):
 
         def rhs(tt: float, s: F64, k: int = k) -> list[float]:
-            w, q, acc = rates(k, tt)
+            w, q, vdot = rates(k, tt, s[3], s[5])
             ct = math.cos(s[5])
             return [
                 s[3] * ct * math.cos(s[4]),
                 s[3] * math.sin(s[5]),
                 s[3] * ct * math.sin(s[4]),
-                acc,
+                float(vdot),
                 float(w),
                 float(q),
             ]
 
         mask = seg_of == k
-        sol = solve_ivp(rhs, (bounds[k], bounds[k + 1]), y, method="DOP853", rtol=1e-11, atol=1e-9, dense_output=True)
+        sol = solve_ivp(
+            rhs,
+            (bounds[k], bounds[k + 1]),
+            y,
+            method="DOP853",
+            rtol=1e-11,
+            atol=1e-9,
+            dense_output=True,
+            max_step=max_step,
+        )
         if mask.any():
             assert sol.sol is not None
             out[mask] = sol.sol(t[mask]).T
@@ -158,8 +234,7 @@ def fly(plan: FlightPlan, times_s: Sequence[float] | F64, g: float = G_TRUTH_MPS
     for k in range(len(segs)):
         mask = seg_of == k
         if mask.any():
-            wk, qk, ak = rates(k, t[mask])
-            w[mask], q[mask], acc[mask] = wk, qk, ak
+            w[mask], q[mask], acc[mask] = rates(k, t[mask], speed[mask], theta[mask])
     v = speed[:, None] * i
     a = acc[:, None] * i + speed[:, None] * (w[:, None] * di_dpsi + q[:, None] * di_dth)
     return TruthStates(t, p, v, a, np.mod(psi, 2 * math.pi), theta, coordinated_roll(v, a, g))
