@@ -9,13 +9,14 @@ independent Gaussian noise (§4.6). The paper's scenario (§3.1) is :func:`paper
 
 from __future__ import annotations
 
+import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 from scipy.integrate import solve_ivp
-from scipy.interpolate import CubicSpline
 
 from schemas import Header, Message, RadarPlot, Truth
 
@@ -149,7 +150,7 @@ def fly(plan: FlightPlan, times_s: Sequence[float] | F64, g: float = G_TRUTH_MPS
     """Sample the true trajectory of a flight plan at ``times_s`` (s, ascending, >= 0)."""
     t = np.asarray(times_s, dtype=np.float64)
     psi0, th0 = math.radians(plan.psi_deg), math.radians(plan.theta_deg)
-    if not plan.segments:  # straight line: closed form
+    if not plan.segments and plan.wander is None:  # straight line: closed form
         i0, _, _ = _unit(np.array([psi0]), np.array([th0]))
         v = np.repeat(i0 * plan.speed_mps, t.size, axis=0)
         p = np.asarray(plan.p0_m) + v * t[:, None]
@@ -164,62 +165,71 @@ def fly(plan: FlightPlan, times_s: Sequence[float] | F64, g: float = G_TRUTH_MPS
     t_end = max(float(t.max()), bounds[-1]) + 1.0
     segs = [*plan.segments, Segment(duration_s=t_end - bounds[-1])]
     bounds.append(t_end)
-    wander = None
+    grid_step, wander_acc = 1.0, np.zeros((2, 3))
     if plan.wander is not None:
-        grid, acc_w = plan.wander.sample(t_end)
-        wander = CubicSpline(grid, acc_w, axis=0)
+        grid_step = plan.wander.step_s
+        wander_acc = plan.wander.sample(t_end)[1]
+    wander_on = plan.wander is not None
 
-    def ramp(pair: tuple[float, float], f: F64 | float) -> F64 | float:
-        return pair[0] + f * (pair[1] - pair[0])
+    def forcing(tt: float) -> tuple[float, float, float]:
+        """The wander's (lateral, vertical, longitudinal) acceleration at tt, linear between grid samples."""
+        u = tt / grid_step
+        i = min(max(int(u), 0), wander_acc.shape[0] - 2)
+        f = u - i
+        lo, hi = wander_acc[i], wander_acc[i + 1]
+        return (
+            float(lo[0] + f * (hi[0] - lo[0])),
+            float(lo[1] + f * (hi[1] - lo[1])),
+            float(lo[2] + f * (hi[2] - lo[2])),
+        )
 
-    def rates(k: int, tt: F64 | float, speed: F64 | float, theta: F64 | float) -> tuple[F64, F64, F64]:
-        """(d psi/dt, d theta/dt, dV/dt) of segment k at time tt, speed and flight-path angle (arrays or scalars)."""
+    def rates(k: int, tt: float, speed: float, theta: float) -> tuple[float, float, float]:
+        """(d psi/dt, d theta/dt, dV/dt) of segment k at time tt, speed (m/s) and flight-path angle (rad)."""
         seg = segs[k]
-        f = (np.asarray(tt) - bounds[k]) / seg.duration_s
-        w = np.radians(ramp(seg.turn_rate_dps, f))
-        q = np.radians(ramp(seg.pitch_rate_dps, f))
-        vdot = seg.accel_mps2 - (g * np.sin(theta) if seg.gravity_speed else 0.0)
-        ct = np.cos(theta)
+        f = (tt - bounds[k]) / seg.duration_s
+        w = math.radians(seg.turn_rate_dps[0] + f * (seg.turn_rate_dps[1] - seg.turn_rate_dps[0]))
+        q = math.radians(seg.pitch_rate_dps[0] + f * (seg.pitch_rate_dps[1] - seg.pitch_rate_dps[0]))
+        vdot = seg.accel_mps2 - (g * math.sin(theta) if seg.gravity_speed else 0.0)
+        ct = math.cos(theta)
         if seg.bank_deg is not None or seg.load_factor is not None:
-            bank = np.radians(ramp(seg.bank_deg, f)) if seg.bank_deg is not None else 0.0
-            n = ramp(seg.load_factor, f) if seg.load_factor is not None else ct / np.cos(bank)
-            w = w + n * g * np.sin(bank) / (speed * ct)
-            q = q + (n * g * np.cos(bank) - g * ct) / speed
-        if wander is not None:
-            lat, vert, lon = np.moveaxis(np.asarray(wander(tt)), -1, 0)
-            w = w + lat / (speed * ct)
-            q = q + vert / speed
-            vdot = vdot + lon
-        return np.asarray(w), np.asarray(q), np.asarray(vdot)
+            bank = 0.0
+            if seg.bank_deg is not None:
+                bank = math.radians(seg.bank_deg[0] + f * (seg.bank_deg[1] - seg.bank_deg[0]))
+            if seg.load_factor is not None:
+                n = seg.load_factor[0] + f * (seg.load_factor[1] - seg.load_factor[0])
+            else:
+                n = ct / math.cos(bank)
+            w += n * g * math.sin(bank) / (speed * ct)
+            q += (n * g * math.cos(bank) - g * ct) / speed
+        if wander_on:
+            lat, vert, lon = forcing(tt)
+            w += lat / (speed * ct)
+            q += vert / speed
+            vdot += lon
+        return w, q, vdot
+
+    def deriv(k: int, tt: float, s: Sequence[float]) -> list[float]:
+        w, q, vdot = rates(k, tt, s[3], s[5])
+        ct = math.cos(s[5])
+        return [s[3] * ct * math.cos(s[4]), s[3] * math.sin(s[5]), s[3] * ct * math.sin(s[4]), vdot, w, q]
 
     y = np.array([*plan.p0_m, plan.speed_mps, psi0, th0], dtype=np.float64)
     out = np.empty((t.size, 6))
     seg_of = np.clip(np.searchsorted(bounds, t, side="right") - 1, 0, len(segs) - 1)
-    max_step = plan.wander.step_s if plan.wander is not None else np.inf
     for k in range(len(segs)):
-
-        def rhs(tt: float, s: F64, k: int = k) -> list[float]:
-            w, q, vdot = rates(k, tt, s[3], s[5])
-            ct = math.cos(s[5])
-            return [
-                s[3] * ct * math.cos(s[4]),
-                s[3] * math.sin(s[5]),
-                s[3] * ct * math.sin(s[4]),
-                float(vdot),
-                float(w),
-                float(q),
-            ]
-
         mask = seg_of == k
+        seg_deriv = functools.partial(deriv, k)
+        if wander_on:  # piecewise-linear forcing: fixed-step RK4 landing on the sample times
+            y = _rk4(seg_deriv, bounds[k], bounds[k + 1], y, t[mask], out, np.flatnonzero(mask))
+            continue
         sol = solve_ivp(
-            rhs,
+            seg_deriv,
             (bounds[k], bounds[k + 1]),
             y,
             method="DOP853",
             rtol=1e-11,
             atol=1e-9,
             dense_output=True,
-            max_step=max_step,
         )
         if mask.any():
             assert sol.sol is not None
@@ -231,13 +241,46 @@ def fly(plan: FlightPlan, times_s: Sequence[float] | F64, g: float = G_TRUTH_MPS
     w = np.empty(t.size)
     q = np.empty(t.size)
     acc = np.empty(t.size)
-    for k in range(len(segs)):
-        mask = seg_of == k
-        if mask.any():
-            w[mask], q[mask], acc[mask] = rates(k, t[mask], speed[mask], theta[mask])
+    for n_, (k, tt) in enumerate(zip(seg_of.tolist(), t.tolist(), strict=True)):
+        w[n_], q[n_], acc[n_] = rates(k, tt, float(speed[n_]), float(theta[n_]))
     v = speed[:, None] * i
     a = acc[:, None] * i + speed[:, None] * (w[:, None] * di_dpsi + q[:, None] * di_dth)
     return TruthStates(t, p, v, a, np.mod(psi, 2 * math.pi), theta, coordinated_roll(v, a, g))
+
+
+#: step of the fixed-step integration of a wandering flight, s (a quarter of the wander's grid step at most)
+RK4_STEP_S = 0.25
+
+
+def _rk4(
+    deriv: Callable[[float, list[float]], list[float]],
+    t0: float,
+    t1: float,
+    y: F64,
+    samples_s: F64,
+    out: F64,
+    rows: npt.NDArray[np.intp],
+) -> F64:
+    """Classic 4th-order Runge-Kutta from t0 to t1 with steps of at most RK4_STEP_S that land on every sample
+    time (the forcing is smooth between the steps' ends); writes the state at samples_s into out[rows] and
+    returns the state at t1."""
+    stops = np.unique(np.concatenate([np.linspace(t0, t1, max(2, math.ceil((t1 - t0) / RK4_STEP_S) + 1)), samples_s]))
+    want = dict(zip(samples_s.tolist(), rows.tolist(), strict=True))
+    ys = np.asarray(y, dtype=np.float64).tolist()
+    t_prev = float(stops[0])
+    if t_prev in want:
+        out[want[t_prev]] = ys
+    for t_next in stops[1:].tolist():
+        h = t_next - t_prev
+        k1 = deriv(t_prev, ys)
+        k2 = deriv(t_prev + 0.5 * h, [a + 0.5 * h * b for a, b in zip(ys, k1, strict=True)])
+        k3 = deriv(t_prev + 0.5 * h, [a + 0.5 * h * b for a, b in zip(ys, k2, strict=True)])
+        k4 = deriv(t_next, [a + h * b for a, b in zip(ys, k3, strict=True)])
+        ys = [a + h / 6.0 * (b + 2.0 * c + 2.0 * d + e) for a, b, c, d, e in zip(ys, k1, k2, k3, k4, strict=True)]
+        t_prev = t_next
+        if t_prev in want:
+            out[want[t_prev]] = ys
+    return np.asarray(ys, dtype=np.float64)
 
 
 def true_spherical(p: F64) -> tuple[F64, F64, F64]:

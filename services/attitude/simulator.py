@@ -6,10 +6,11 @@ manoeuvring plans, or a start state plus turn/climb/acceleration segments given 
 true (range, azimuth, elevation) + independent Gaussian noise with the radar's sigmas (§4.6). Keys
 (``<site>`` = ``site_id``, ``<sensor>`` = ``sensor_id``, default ``plots``):
 
-* ``fixstream/sensor/<site>/radar/<sensor>``: one :class:`~schemas.RadarSite` at t = 0 (the site's sigmas and
-  scan period, unless ``publish_site: false``), then every :class:`~schemas.RadarPlot` in stamp order, and a
-  :class:`~schemas.TrackEnd` after a target's last plot when it has ``track_end: true``. One key, so the
-  service sees them in the order they were made;
+* ``fixstream/sensor/<site>/radar/<sensor>``: every :class:`~schemas.RadarPlot` in stamp order;
+  ``.../<sensor>/site``: one :class:`~schemas.RadarSite` at t = 0 (the site's sigmas and scan period, unless
+  ``publish_site: false``); ``.../<sensor>/track_end``: a :class:`~schemas.TrackEnd` after a target's last plot
+  when it has ``track_end: true``. One key per message type; the service subscribes to ``.../<sensor>/**``
+  with one subscriber, so it sees one publisher's messages in the order they were made;
 * ``fixstream/truth/<target id>``: :class:`~schemas.Truth` at every scan time of the target (also when its
   plot is missing), unless ``publish_truth: false``: position, velocity and acceleration ``[east, north, up]``
   in the scenario frame (the radar at ``site_position_m``), ``attitude_rad`` = [heading, pitch, roll] of the
@@ -57,6 +58,7 @@ from .simulation import (
     paper_plan,
     true_spherical,
 )
+from .topics import radar_key, site_key, track_end_key
 
 KeyChunk = Annotated[str, AfterValidator(keys.chunk)]
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -66,11 +68,6 @@ Rate = float | Annotated[list[float], Field(min_length=2, max_length=2)]
 NAMED_PLANS = ("paper", "turn30", "climb10", "weave")
 #: plot order within one stamp: the site first, then per target (file order): truth, plot, track end
 _SITE, _TRUTH, _PLOT, _END = 0, 1, 2, 3
-
-
-def radar_key(site_id: str, sensor_id: str = "plots") -> str:
-    """``fixstream/sensor/<site>/radar/<sensor>``: where a site's plots, track ends and site messages go."""
-    return keys.sensor(site_id, "radar", sensor_id)
 
 
 def enu_to_nue(v: np.ndarray) -> np.ndarray:
@@ -381,6 +378,8 @@ class AttitudeRadar:
         self.rng = rng
         self.context = context
         self.key = radar_key(params.site_id, params.sensor_id)
+        self.site_key = site_key(params.site_id, params.sensor_id)
+        self.end_key = track_end_key(params.site_id, params.sensor_id)
         self.sigmas = params.sigmas()
         self.targets = [
             _Target(t.id, self._wandering(t), t.phase_s, t.end_s, frozenset(t.missed_scans), t.p_detect, t.track_end)
@@ -443,7 +442,7 @@ class AttitudeRadar:
             sigma_el_deg=self.sigmas.sigma_el_deg,
             scan_period_s=p.scan_period_s,
         )
-        return Event(0, self.key, msg)
+        return Event(0, self.site_key, msg)
 
     def _target_events(self, index: int, target: _Target) -> Iterator[tuple[int, int, int, int, Event]]:
         """(stamp, target index, kind, k, event) of one target, in stamp order."""
@@ -492,7 +491,7 @@ class AttitudeRadar:
                 yield (stamp, index, _PLOT, k, Event(stamp, self.key, plot))
             if target.track_end and k == last_plot:
                 end = TrackEnd(header=header, site_id=p.site_id, target_id=target.id)
-                yield (stamp, index, _END, k, Event(stamp, self.key, end))
+                yield (stamp, index, _END, k, Event(stamp, self.end_key, end))
 
     def events(self) -> Iterator[Event]:
         streams = [self._target_events(i, t) for i, t in enumerate(self.targets)]
@@ -515,4 +514,6 @@ __all__ = [
     "enu_to_nue",
     "nue_to_enu",
     "radar_key",
+    "site_key",
+    "track_end_key",
 ]
