@@ -269,6 +269,8 @@ class AttitudeCore:
         beta = (az % 360.0) * _D2R
         eps = el * _D2R
         z, rz = convert_plot(r, beta, eps, s_r, s_az * _D2R, s_el * _D2R)
+        if not (np.isfinite(z).all() and is_positive_definite(rz)):  # e.g. 1 m away near the zenith, huge sigmas
+            raise self._reject("degenerate_plot", f"{plot.target_id}: converted covariance not positive definite")
         los_dir = (beta, eps) if cfg.los_dir_source == "measured" else None
         period_ns = site.scan_period_s * NS
         reset_ns = cfg.reset_gap_scans * period_ns
@@ -323,7 +325,10 @@ class AttitudeCore:
             return False
         zs = np.stack([b[1] for b in tr.buffer])
         rs = np.stack([b[2] for b in tr.buffer])
-        x, p = fsf_estimate(taus, zs, rs)
+        try:
+            x, p = fsf_estimate(taus, zs, rs)
+        except np.linalg.LinAlgError:
+            return False
         if not (np.isfinite(x).all() and is_positive_definite(p)):
             return False
         tr.x, tr.p, tr.t_ns = x, p, t_ref
@@ -404,7 +409,13 @@ class AttitudeCore:
         cfg = self.config
         dt = (t - tr.t_ns) / NS if tr.t_ns is not None else 0.0
         c, xp, pp = imm.predict(tr.imm, self._models, dt)
-        if cfg.nis_gate is not None:
+        try:
+            res: imm.ImmUpdate | None = imm.update_models(c, xp, pp, z, rz)
+        except np.linalg.LinAlgError:
+            res = None
+        # the gate statistic is at most the smallest per-model NIS (the widening only enlarges S): compute it only
+        # when that NIS is outside the gate
+        if cfg.nis_gate is not None and not (res is not None and float(res.nis_models.min()) <= cfg.nis_gate):
             widen = 0.0 if cfg.gate_accel_mps2 is None else 0.5 * cfg.gate_accel_mps2 * dt * dt
             try:
                 g = imm.gate_nis(xp, pp, z, rz, widen)
@@ -412,10 +423,6 @@ class AttitudeCore:
                 g = math.nan
             if not g <= cfg.nis_gate and self._gate_failed(tr, t, z, rz, g, flags):
                 return None
-        try:
-            res = imm.update_models(c, xp, pp, z, rz)
-        except np.linalg.LinAlgError:
-            res = None
         if res is None or not (np.isfinite(res.x).all() and is_positive_definite(res.p)):
             tr.restart(t, z, rz)
             flags.append("COVARIANCE_RESET")

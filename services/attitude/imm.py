@@ -55,15 +55,18 @@ def model_matrices(model: MotionModel, dt_s: float) -> tuple[F64, F64]:
     return f, q
 
 
+@lru_cache(maxsize=256)
 def transition_probabilities(models: tuple[MotionModel, ...], dt_s: float) -> F64:
     """pi (M x M), pi[i, j] = P(model j at t + dt | model i at t): p_ii = exp(-|dt| / sojourn_i), the rest of
     row i shared equally among the other models. Rows sum to 1."""
     m = len(models)
     if m == 1:
-        return np.ones((1, 1))
-    stay = np.array([math.exp(-abs(dt_s) / mod.sojourn_s) for mod in models])
-    pi = np.repeat(((1.0 - stay) / (m - 1))[:, None], m, axis=1)
-    np.fill_diagonal(pi, stay)
+        pi = np.ones((1, 1))
+    else:
+        stay = np.array([math.exp(-abs(dt_s) / mod.sojourn_s) for mod in models])
+        pi = np.repeat(((1.0 - stay) / (m - 1))[:, None], m, axis=1)
+        np.fill_diagonal(pi, stay)
+    pi.setflags(write=False)
     return pi
 
 
@@ -108,7 +111,7 @@ def mix(state: ImmState, pi: F64) -> tuple[F64, F64, F64]:
 
 def predict(state: ImmState, models: tuple[MotionModel, ...], dt_s: float) -> tuple[F64, F64, F64]:
     """Steps 1-2 without a plot: (c, alpha~ (M, 9), P~ (M, 9, 9)), each model predicted from its mixed start."""
-    c, x0, p0 = mix(state, transition_probabilities(models, dt_s))
+    c, x0, p0 = mix(state, transition_probabilities(models, float(dt_s)))
     xp = np.empty_like(x0)
     pp = np.empty_like(p0)
     for j, model in enumerate(models):
@@ -147,8 +150,7 @@ def update_models(c: F64, xp: F64, pp: F64, z: F64, rz: F64) -> ImmUpdate:
     loglik = np.empty(m)
     for j in range(m):
         xs[j], ps[j], nis_j[j] = update(xp[j], pp[j], z, rz)
-        s = pp[j][POS, POS] + rz
-        loglik[j] = -0.5 * (nis_j[j] + math.log(float(np.linalg.det(s))) + 3.0 * _LOG_2PI)
+        loglik[j] = -0.5 * (nis_j[j] + math.log(_det3((pp[j][POS, POS] + rz).tolist())) + 3.0 * _LOG_2PI)
     lw = loglik + np.log(np.maximum(c, 1e-300))
     lw -= lw.max()
     mu = np.exp(lw)
@@ -158,6 +160,12 @@ def update_models(c: F64, xp: F64, pp: F64, z: F64, rz: F64) -> ImmUpdate:
     nu = z - x_bar[POS]
     nis = float(nu @ np.linalg.solve(p_bar[POS, POS] + rz, nu))
     return ImmUpdate(ImmState(xs, ps, mu), x, p, nis, nis_j, loglik)
+
+
+def _det3(s: list[list[float]]) -> float:
+    """Determinant of a 3x3 matrix (rule of Sarrus); S is positive definite here (the update's Cholesky passed)."""
+    (a, b, c), (d, e, f), (g, h, i) = s
+    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
 
 
 def step(state: ImmState, models: tuple[MotionModel, ...], dt_s: float, z: F64, rz: F64) -> ImmUpdate:

@@ -18,7 +18,7 @@ instance name):
 **Refused** (counted in ``rejected_by_reason``, the state is untouched): the codec's reasons (``non_finite``
 for a NaN or infinite value, ``out_of_bounds``, ``bad_msgpack``, ``missing_field``, ...), ``unexpected_type``,
 ``invalid_target_id`` (not usable as a key chunk) and the core's ``out_of_order`` (a plot older than the
-target's last), ``duplicate_time``, ``innovation_gate``, ``wrong_site``, ``bad_sigma``.
+target's last), ``duplicate_time``, ``innovation_gate``, ``wrong_site``, ``bad_sigma``, ``degenerate_plot``.
 
 **Events** (reported, not refused: the plot is used): ``scans_missed`` (info: the plot came after a gap of
 more than ``coast_after_scans`` scans and was predicted over; its sigmas are wider), ``gap_reset``,
