@@ -106,6 +106,11 @@ class AttitudeEstimate(Message):
     turn_rate_dps: float | None = Field(default=None, description="d(psi)/dt, deg/s, + clockwise")
     load_factor: float | None = Field(default=None, description="normal load factor n, dimensionless")
     nis: float | None = Field(default=None, ge=0.0, description="normalised innovation squared of this plot")
+    model_probabilities: list[float] | None = Field(
+        default=None,
+        max_length=8,
+        description="IMM model probabilities mu_j, in the order of the estimator's imm_models (null: single model)",
+    )
 
     flags: list[AttitudeFlag] = Field(default_factory=list, max_length=16)
     raw: RawAttitudeAngles | None = Field(default=None, description="raw-baseline angles (§2.6), diagnostic")

@@ -49,6 +49,7 @@ EXAMPLES: dict[str, Message] = {
         turn_rate_dps=0.01,
         load_factor=1.0,
         nis=2.7,
+        model_probabilities=[0.9, 0.06, 0.04],
         flags=[],
         raw=RawAttitudeAngles(psi_deg=250.0, theta_deg=-12.0, gamma_deg=40.0, psi_los_deg=170.0, theta_los_deg=-9.0),
     ),

@@ -54,7 +54,7 @@ def same_state(a, b) -> bool:
 # ----------------------------------------------------------------------------------------------------- status
 def test_init_then_fsf_start_then_kf_and_status_sequence() -> None:
     plots, _ = paper_plots(60)
-    core = AttitudeCore()
+    core = AttitudeCore(AttitudeConfig(preset="paper"))  # the digest's status rule (§5.5)
     out = run(core, plots)
     assert len(out) == 60
     assert [o.status for o in out[:2]] == ["INIT", "INIT"]
@@ -109,7 +109,7 @@ def test_roll_undefined_at_zero_normal_force() -> None:
     p0, v0, g = np.array([30e3, 8e3, 20e3]), np.array([-150.0, 0.0, -100.0]), np.array([0.0, -9.81, 0.0])
     pos = p0 + v0 * times[:, None] + 0.5 * g * times[:, None] ** 2
     r, b, e = true_spherical(pos)
-    cfg = AttitudeConfig(radar="Vostok3D", heading_sigma_factor=0.0)
+    cfg = AttitudeConfig(preset="paper", radar="Vostok3D", heading_sigma_factor=0.0)
     out = run(
         AttitudeCore(cfg),
         [plot(t, rr, math.degrees(bb), math.degrees(ee)) for t, rr, bb, ee in zip(times, r, b, e, strict=True)],
@@ -349,7 +349,7 @@ def test_sites_are_kept_apart_and_radar_site_updates_sigmas() -> None:
 # ----------------------------------------------------------------------------------------------------- time
 def test_estimate_at_extrapolates_with_b_and_m() -> None:
     plots, _ = paper_plots(30)
-    core = AttitudeCore()
+    core = AttitudeCore(AttitudeConfig(preset="paper"))  # the single-model filter: B and M of eq. (3)
     out = run(core, plots)
     snap = core.snapshot("t1")
     t_q = snap.t_ns + round(2.5 * NS)

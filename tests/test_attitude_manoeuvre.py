@@ -84,7 +84,7 @@ def test_noise_free_tracking_of_several_manoeuvring_targets_at_once() -> None:
     msgs = scenario_messages(scenario, np.random.default_rng(3))
     assert [m.header.stamp_ns for m in msgs] == sorted(m.header.stamp_ns for m in msgs)
     cfg = AttitudeConfig(
-        radar=None, sigma_r_m=0.1, sigma_az_deg=1e-5, sigma_el_deg=1e-5, sigma_jerk_mps3=(1.0, 1.0, 1.0)
+        preset="paper", radar=None, sigma_r_m=0.1, sigma_az_deg=1e-5, sigma_el_deg=1e-5, sigma_jerk_mps3=(1.0, 1.0, 1.0)
     )
     core = AttitudeCore(cfg)
     outs: list[AttitudeEstimate] = []
@@ -110,6 +110,7 @@ def test_filtered_angles_beat_raw_angles_during_manoeuvres() -> None:
     the filtered roll and LOS angles is at least 2x smaller than the raw baseline's (the paper's claim, P1, on
     manoeuvring truth; observed ratios 3.3-10)."""
     cfg = AttitudeConfig(
+        preset="paper",  # the single-model filter with a larger sigma_j
         radar="Vostok3D",
         sigma_jerk_mps3=(0.3, 0.3, 0.3),
         heading_sigma_factor=0.0,

@@ -58,7 +58,9 @@ def test_events_follow_the_contract_and_truth_matches_the_plots() -> None:
     assert isinstance(events[0].msg, RadarSite) and events[0].stamp_ns == 0
     assert events[0].msg.sigma_r_m == 1e-6 and events[0].msg.scan_period_s == 5.0
     assert [e.stamp_ns for e in events] == sorted(e.stamp_ns for e in events)
-    assert {e.key for e in events} == {"fixstream/sensor/r1/radar/plots", *(f"fixstream/truth/{t}" for t in "abc")}
+    radar = "fixstream/sensor/r1/radar/plots"  # one key, one message type: plots, the site on radar/plots/site
+    assert {e.key for e in events} == {radar, f"{radar}/site", *(f"fixstream/truth/{t}" for t in "abc")}
+    assert all(isinstance(e.msg, RadarSite) == (e.key == f"{radar}/site") for e in events)
     truth = {(e.msg.platform, e.stamp_ns): e.msg for e in events if isinstance(e.msg, Truth)}
     plots = [e.msg for e in events if isinstance(e.msg, RadarPlot)]
     assert len(plots) == 41 + 40 + 40 and len(truth) == len(plots)

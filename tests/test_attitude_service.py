@@ -136,7 +136,7 @@ def test_settings_from_the_environment_and_build(monkeypatch: pytest.MonkeyPatch
     monkeypatch.setenv("FIXSTREAM_ATTITUDE_NIS_GATE", "30")
     svc = attitude_service.build()
     assert svc.instance == "north" and svc.site_id == "north"  # the site defaults to the instance name
-    assert svc.in_key == "fixstream/sensor/north/radar/*"
+    assert svc.in_key == "fixstream/sensor/north/radar/**"
     assert output_key("north", "ac7") == "fixstream/fix/attitude/north/ac7"
     cfg = svc.core_config
     assert cfg.site_id == "north" and cfg.radar == "19Zh6" and cfg.sigma_jerk_mps3 == (0.3, 0.3, 0.1)
@@ -147,13 +147,13 @@ def test_settings_from_the_environment_and_build(monkeypatch: pytest.MonkeyPatch
     )
     assert cfg == default
     status = svc.status()
-    assert status["keys"] == {"in": "fixstream/sensor/north/radar/*", "out": "fixstream/fix/attitude/north/*"}
+    assert status["keys"] == {"in": "fixstream/sensor/north/radar/**", "out": "fixstream/fix/attitude/north/*"}
     assert status["sigmas"] == {"sigma_r_m": 250.0, "sigma_az_deg": 0.4, "sigma_el_deg": 1.0}
 
     monkeypatch.setenv("FIXSTREAM_ATTITUDE_SITE_ID", "site9")
     monkeypatch.setenv("FIXSTREAM_ATTITUDE_SENSOR_ID", "main")
     svc = attitude_service.build()
-    assert svc.site_id == "site9" and svc.in_key == "fixstream/sensor/site9/radar/main"
+    assert svc.site_id == "site9" and svc.in_key == "fixstream/sensor/site9/radar/main/**"
     monkeypatch.setenv("FIXSTREAM_ATTITUDE_RADAR", "AN-TPS")
     with pytest.raises(ValidationError, match="radar"):
         attitude_service.build()
@@ -164,8 +164,8 @@ def test_settings_from_the_environment_and_build(monkeypatch: pytest.MonkeyPatch
 
 
 def test_input_and_output_keys() -> None:
-    assert input_key("r1") == "fixstream/sensor/r1/radar/*"
-    assert input_key("r1", "plots") == RADAR_KEY
+    assert input_key("r1") == "fixstream/sensor/r1/radar/**"
+    assert input_key("r1", "plots") == RADAR_KEY + "/**"
     with pytest.raises(ValueError):
         output_key("r1", "a/b")
 
@@ -179,7 +179,7 @@ def test_offline_service_equals_the_core_in_process() -> None:
     scenario = load_scenario(REPO / "scenarios" / "attitude_9s15.yaml")
     svc = make_service()
     feed = inputs_of(svc, all_events(scenario))
-    assert [k for k, _ in feed] == [RADAR_KEY] * 101  # the site, then 100 plots; truth is not subscribed
+    assert [k for k, _ in feed] == [f"{RADAR_KEY}/site"] + [RADAR_KEY] * 100  # the site, 100 plots; no truth
     out = svc.run_offline(framed(scenario, feed))
     fix_key = output_key(SITE, "ac1")
     fixes = on_key(out, fix_key)

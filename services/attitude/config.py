@@ -7,7 +7,7 @@ Tags in the descriptions follow the digest: [PAPER] stated in the paper, [RECON]
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -37,10 +37,81 @@ class MeasurementSigmas(BaseModel):
         return cls(sigma_r_m=r, sigma_az_deg=az, sigma_el_deg=el)
 
 
+Preset = Literal["manoeuvre", "paper"]
+_UNSET = object()
+
+
+class MotionModel(BaseModel):
+    """One motion model of the interacting-multiple-model (IMM) bank, over the same 9-state as eq. (3).
+
+    * ``ca``: the paper's constant-acceleration model driven by random jerk (eq. 3, M = S^T D S) of standard
+      deviation ``sigma_jerk_mps3`` (m/s^3);
+    * ``singer``: the acceleration is mean-reverting (first-order Markov, correlation time ``tau_s``) with
+      stationary standard deviation ``sigma_accel_mps2``: non-manoeuvring flight, whose acceleration wanders
+      about zero (turbulence, pilot corrections) instead of drifting like the CA model's random walk.
+
+    ``sojourn_s``: mean time (s) the aircraft stays in this mode; the Markov switching probability over a step
+    dt is 1 - exp(-dt / sojourn_s), shared equally among the other models.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str = Field(min_length=1, max_length=32, description="label in outputs and docs")
+    kind: Literal["ca", "singer"] = Field(description="ca: random jerk (eq. 3); singer: mean-reverting acceleration")
+    sigma_jerk_mps3: float | None = Field(default=None, ge=0.0, le=100.0, description="ca: jerk std, m/s^3")
+    sigma_accel_mps2: float | None = Field(default=None, gt=0.0, le=100.0, description="singer: accel std, m/s^2")
+    tau_s: float | None = Field(default=None, gt=0.0, le=1e5, description="singer: correlation time, s")
+    sojourn_s: float = Field(gt=0.0, le=1e7, description="mean time in this mode, s")
+
+    @model_validator(mode="after")
+    def _parameters(self) -> MotionModel:
+        if self.kind == "ca" and (self.sigma_jerk_mps3 is None or self.sigma_accel_mps2 is not None):
+            raise ValueError("a ca model takes sigma_jerk_mps3 (and no sigma_accel_mps2)")
+        if self.kind == "singer" and (self.sigma_accel_mps2 is None or self.tau_s is None or self.sigma_jerk_mps3):
+            raise ValueError("a singer model takes sigma_accel_mps2 and tau_s (and no sigma_jerk_mps3)")
+        return self
+
+
+#: the manoeuvre-robust model bank (docs/attitude.md, "Manoeuvres"): straight flight with wandering acceleration,
+#: a manoeuvre model (turns, pull-ups) and a manoeuvre-onset model (roll-in, roll-out, load-factor steps)
+MANOEUVRE_MODELS: tuple[MotionModel, ...] = (
+    MotionModel(name="straight", kind="singer", sigma_accel_mps2=0.2, tau_s=20.0, sojourn_s=300.0),
+    MotionModel(name="manoeuvre", kind="ca", sigma_jerk_mps3=0.3, sojourn_s=60.0),
+    MotionModel(name="onset", kind="ca", sigma_jerk_mps3=1.0, sojourn_s=20.0),
+)
+
+#: the parameters a preset sets (any of them given explicitly overrides the preset)
+PRESETS: dict[str, dict[str, Any]] = {
+    "paper": {
+        "motion": "single",
+        "nis_gate": 21.1,
+        "gate_accel_mps2": None,
+        "nis_reset_count": 3,
+        "valid_nis_window": None,
+        "heading_sigma_factor": 3.0,
+    },
+    "manoeuvre": {
+        "motion": "imm",
+        "nis_gate": 21.1,
+        "gate_accel_mps2": 30.0,
+        "nis_reset_count": 3,
+        "valid_nis_window": 5,
+        "heading_sigma_factor": 2.0,
+    },
+}
+
+
 class AttitudeConfig(BaseModel):
     """Configuration of one :class:`~services.attitude.core.AttitudeCore` (one radar site, many targets)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+    preset: Preset = Field(
+        default="manoeuvre",
+        description="manoeuvre: the IMM filter, manoeuvre gate and consistency-checked VALID (the default); paper: "
+        "the digest's single constant-acceleration filter (its acceptance tests use it). Sets the parameters "
+        "listed in PRESETS; any of them given explicitly wins",
+    )
 
     # --- radar site -----------------------------------------------------------------------------
     site_id: str | None = Field(
@@ -59,6 +130,30 @@ class AttitudeConfig(BaseModel):
     sigma_jerk_mps3: tuple[float, float, float] = Field(
         default=(0.03, 0.03, 0.03),
         description="random-jerk std per axis (x=N, y=Up, z=E), m/s^3; D = sigma^2 [CHOICE; paper gives no value]",
+    )
+    motion: Literal["single", "imm"] = Field(
+        default="imm",
+        description="single: the paper's filter with sigma_jerk_mps3; imm: interacting multiple models (imm_models)",
+    )
+    imm_models: tuple[MotionModel, ...] = Field(
+        default=MANOEUVRE_MODELS, min_length=1, max_length=8, description="the IMM's motion models [EXT]"
+    )
+    imm_initial_probabilities: tuple[float, ...] | None = Field(
+        default=None, description="model probabilities at the FSF start (None: 0.9 on the first, the rest shared)"
+    )
+    gate_accel_mps2: float | None = Field(
+        default=30.0,
+        gt=0.0,
+        description="manoeuvre gate [EXT]: a plot is gated only if it is outside nis_gate even for an unmodelled "
+        "acceleration change of this size over the step (S + (a dt^2 / 2)^2 I, the widest model); None: the plain "
+        "NIS gate of the paper preset",
+    )
+    valid_nis_window: int | None = Field(
+        default=5,
+        ge=1,
+        le=100,
+        description="VALID also needs the mean NIS of the last this-many plots inside the chi2(3 W) 99 % bound "
+        "(the estimate's covariance explains its innovations) [EXT]; None: sigmas only (paper preset)",
     )
     g_mps2: float = Field(default=9.81, gt=0.0, description="gravity in eq. (4), m/s^2 (the OCR reads 9.82)")
     nis_gate: float | None = Field(
@@ -95,7 +190,7 @@ class AttitudeConfig(BaseModel):
     # --- validity and status (§5.5, §5.6) ----------------------------------------------------------
     v_min_mps: float = Field(default=10.0, ge=0.0, description="horizontal speed below which heading is undefined")
     heading_sigma_factor: float = Field(
-        default=3.0, ge=0.0, description="heading undefined while V_h < factor x sigma(V_h); 0 disables the rule"
+        default=2.0, ge=0.0, description="heading undefined while V_h < factor x sigma(V_h); 0 disables the rule"
     )
     min_normal_force_g: float = Field(
         default=0.1, ge=0.0, description="roll undefined while the normal specific force is below this, g"
@@ -129,6 +224,21 @@ class AttitudeConfig(BaseModel):
     frame_id_prefix: str = Field(default="radar_nue/", description="output frame_id = prefix + site_id")
     source: str = Field(default="attitude", description="header.source of the outputs")
 
+    @model_validator(mode="before")
+    @classmethod
+    def _apply_preset(cls, data: Any) -> Any:
+        """Fill every preset parameter not given explicitly from the preset (default ``manoeuvre``)."""
+        if not isinstance(data, dict):
+            return data
+        preset = data.get("preset", "manoeuvre")
+        if preset not in PRESETS:
+            return data  # the field's own validation reports it
+        out = dict(data)
+        for name, value in PRESETS[preset].items():
+            if out.get(name, _UNSET) is _UNSET:
+                out[name] = value
+        return out
+
     @model_validator(mode="after")
     def _sigmas_resolvable(self) -> AttitudeConfig:
         if self.radar is None and None in (self.sigma_r_m, self.sigma_az_deg, self.sigma_el_deg):
@@ -139,7 +249,19 @@ class AttitudeConfig(BaseModel):
             raise ValueError("sigma_jerk_mps3 must be finite and >= 0")
         if any(not math.isfinite(s) or s <= 0.0 for s in self.jacobian_steps):
             raise ValueError("jacobian_steps must be finite and > 0")
+        mu0 = self.imm_initial_probabilities
+        if mu0 is not None and (
+            len(mu0) != len(self.imm_models) or any(not 0.0 < m <= 1.0 for m in mu0) or abs(sum(mu0) - 1.0) > 1e-9
+        ):
+            raise ValueError("imm_initial_probabilities: one positive probability per model, summing to 1")
         return self
+
+    def initial_probabilities(self) -> tuple[float, ...]:
+        """mu_0 of the IMM at the FSF start: the configured values, or 0.9 on the first model and the rest shared."""
+        if self.imm_initial_probabilities is not None:
+            return self.imm_initial_probabilities
+        m = len(self.imm_models)
+        return (1.0,) if m == 1 else (0.9, *([0.1 / (m - 1)] * (m - 1)))
 
     def measurement_sigmas(self) -> MeasurementSigmas:
         """The radar's default sigmas: preset values overridden by any explicit sigma_* field."""

@@ -16,12 +16,14 @@ from dataclasses import dataclass
 from typing import Any, TypeVar
 
 import numpy as np
+from scipy.stats import chi2
 
 from schemas import RadarPlot, RadarSite, TrackEnd
 from schemas.attitude import AttitudeEstimate, AttitudeFlag, AttitudeStatus, RawAttitudeAngles
 from schemas.base import Header, StrictModel
 from shared.errors import InputRejected
 
+from . import imm
 from .angles import IDX, N_ANGLES, AngleConventions, angle_block, angle_jacobian
 from .config import AttitudeConfig, MeasurementSigmas
 from .filter import is_positive_definite, predict, update
@@ -49,6 +51,7 @@ class TrackSnapshot:
     t_ns: int | None
     n_updates: int
     n_buffered: int
+    model_probabilities: F64 | None = None  # IMM mu_j (None: the single-model filter, or not started)
 
 
 class _Site:
@@ -65,8 +68,10 @@ class _Track:
     __slots__ = (
         "buffer",
         "coast_k",
+        "imm",
         "n_updates",
         "nis_fail",
+        "nis_hist",
         "p",
         "pending",
         "raw",
@@ -90,6 +95,8 @@ class _Track:
         self.coast_k = 0
         self.pending: list[AttitudeFlag] = []
         self.t_activity_ns = 0
+        self.imm: imm.ImmState | None = None  # per-model state of the IMM (motion = "imm")
+        self.nis_hist: deque[float] = deque(maxlen=100)  # NIS of the accepted plots since the start
 
     def last_plot_ns(self) -> int | None:
         if self.x is not None:
@@ -104,6 +111,8 @@ class _Track:
         self.n_updates = 0
         self.nis_fail = 0
         self.coast_k = 0
+        self.imm = None
+        self.nis_hist.clear()
         self.buffer.clear()
         self.buffer.append((t_ns, z, rz))
         self.raw.clear()
@@ -131,6 +140,12 @@ class AttitudeCore:
         # the six main angles (earth and LOS) checked against the linearisation limit
         self._main_idx = (IDX["psi"], IDX["theta"], IDX["gamma"], *self._los_idx)
         self._analytic = cfg.jacobian == "analytic"
+        self._imm = cfg.motion == "imm"
+        self._models = cfg.imm_models
+        self._mu0 = cfg.initial_probabilities()
+        #: VALID needs the mean NIS of the last W plots under the chi2(3 W) 99 % quantile / W (W = valid_nis_window)
+        w = cfg.valid_nis_window
+        self._nis_bound = None if w is None else float(chi2.ppf(0.99, 3 * w)) / w
         #: running counts of rejections (by reason) and events (resets, evictions), for diagnostics
         self.counters: Counter[str] = Counter()
 
@@ -150,7 +165,7 @@ class AttitudeCore:
         tr = self._find(target_id, site_id)
         if tr.x is None or tr.p is None or tr.t_ns is None:
             return self._init_estimate(tr, stamp_ns, "INIT", [])
-        x, p = predict(tr.x, tr.p, (stamp_ns - tr.t_ns) / NS, self._d_a)
+        x, p = self._predict(tr, (stamp_ns - tr.t_ns) / NS)
         return self._estimate(tr, stamp_ns, x, p, ["EXTRAPOLATED"], None, None, None)
 
     def housekeeping(self, stamp_ns: int) -> list[AttitudeEstimate]:
@@ -174,7 +189,7 @@ class AttitudeCore:
             ):
                 tr.coast_k += 1
                 t_k = tr.t_ns + round(tr.coast_k * period_ns)
-                x, p = predict(tr.x, tr.p, (t_k - tr.t_ns) / NS, self._d_a)
+                x, p = self._predict(tr, (t_k - tr.t_ns) / NS)
                 out.append(self._estimate(tr, t_k, x, p, ["EXTRAPOLATED"], "COASTING", None, None))
         return out
 
@@ -190,6 +205,7 @@ class AttitudeCore:
             t_ns=tr.t_ns,
             n_updates=tr.n_updates,
             n_buffered=len(tr.buffer),
+            model_probabilities=None if tr.imm is None else tr.imm.mu.copy(),
         )
 
     def site_parameters(self, site_id: str) -> tuple[MeasurementSigmas, float]:
@@ -253,6 +269,8 @@ class AttitudeCore:
         beta = (az % 360.0) * _D2R
         eps = el * _D2R
         z, rz = convert_plot(r, beta, eps, s_r, s_az * _D2R, s_el * _D2R)
+        if not (np.isfinite(z).all() and is_positive_definite(rz)):  # e.g. 1 m away near the zenith, huge sigmas
+            raise self._reject("degenerate_plot", f"{plot.target_id}: converted covariance not positive definite")
         los_dir = (beta, eps) if cfg.los_dir_source == "measured" else None
         period_ns = site.scan_period_s * NS
         reset_ns = cfg.reset_gap_scans * period_ns
@@ -307,13 +325,25 @@ class AttitudeCore:
             return False
         zs = np.stack([b[1] for b in tr.buffer])
         rs = np.stack([b[2] for b in tr.buffer])
-        x, p = fsf_estimate(taus, zs, rs)
+        try:
+            x, p = fsf_estimate(taus, zs, rs)
+        except np.linalg.LinAlgError:
+            return False
         if not (np.isfinite(x).all() and is_positive_definite(p)):
             return False
         tr.x, tr.p, tr.t_ns = x, p, t_ref
         tr.n_updates = len(tr.buffer)
         tr.buffer.clear()
+        if self._imm:
+            tr.imm = imm.ImmState.start(x, p, self._mu0)
         return True
+
+    def _predict(self, tr: _Track, dt_s: float) -> tuple[F64, F64]:
+        """The state's (mixture's) prediction over dt_s: B alpha, B P B^T + M, or the IMM's predicted moments."""
+        assert tr.x is not None and tr.p is not None
+        if tr.imm is not None:
+            return imm.predict_combined(tr.imm, self._models, dt_s)
+        return predict(tr.x, tr.p, dt_s, self._d_a)
 
     def _kf_step(
         self, tr: _Track, t: int, z: F64, rz: F64, period_ns: float, flags: list[AttitudeFlag]
@@ -326,6 +356,8 @@ class AttitudeCore:
             flags.append("GAP_RESET")
             self.counters["reset_gap"] += 1
             return None
+        if tr.imm is not None:
+            return self._imm_step(tr, t, z, rz, period_ns, flags)
         x_pred, p_pred = predict(tr.x, tr.p, (t - tr.t_ns) / NS, self._d_a, symmetrise=False)
         try:
             x, p, nis = update(x_pred, p_pred, z, rz)
@@ -334,28 +366,71 @@ class AttitudeCore:
             flags.append("COVARIANCE_RESET")
             self.counters["reset_covariance"] += 1
             return None
-        if cfg.nis_gate is not None and not nis <= cfg.nis_gate:
-            tr.nis_fail += 1
-            if tr.nis_fail >= cfg.nis_reset_count:
-                tr.restart(t, z, rz)
-                flags.append("NIS_RESET")
-                self.counters["reset_nis"] += 1
-                return None
-            tr.pending.append("GATE_REJECTED")
-            raise self._reject("innovation_gate", f"{tr.target_id}: NIS {nis:.1f} > {cfg.nis_gate} ({tr.nis_fail})")
+        if cfg.nis_gate is not None and not nis <= cfg.nis_gate and self._gate_failed(tr, t, z, rz, nis, flags):
+            return None
         if not (np.isfinite(x).all() and is_positive_definite(p)):
             tr.restart(t, z, rz)
             flags.append("COVARIANCE_RESET")
             self.counters["reset_covariance"] += 1
             return None
-        if t - tr.t_ns > cfg.coast_after_scans * period_ns:
+        self._accept(tr, t, z, x, p, nis, flags, period_ns)
+        return nis
+
+    def _accept(
+        self, tr: _Track, t: int, z: F64, x: F64, p: F64, nis: float, flags: list[AttitudeFlag], period_ns: float
+    ) -> None:
+        """The plot is in the state: store the estimate, count it, remember its NIS and the raw plot."""
+        assert tr.t_ns is not None
+        if t - tr.t_ns > self.config.coast_after_scans * period_ns:
             flags.append("SCANS_MISSED")  # predicted over the gap (§5.6): the covariance grew through M
             self.counters["scans_missed"] += 1
         tr.x, tr.p, tr.t_ns = x, p, t
         tr.n_updates += 1
         tr.nis_fail = 0
+        tr.nis_hist.append(nis)
         tr.raw.append((t, z.tolist()))
-        return nis
+
+    def _gate_failed(self, tr: _Track, t: int, z: F64, rz: F64, nis: float, flags: list[AttitudeFlag]) -> bool:
+        """A plot outside the gate: count it; True if the track was reset, else raises InputRejected."""
+        tr.nis_fail += 1
+        if tr.nis_fail >= self.config.nis_reset_count:
+            tr.restart(t, z, rz)
+            flags.append("NIS_RESET")
+            self.counters["reset_nis"] += 1
+            return True
+        tr.pending.append("GATE_REJECTED")
+        raise self._reject("innovation_gate", f"{tr.target_id}: NIS {nis:.1f} > {self.config.nis_gate} ({tr.nis_fail})")
+
+    def _imm_step(
+        self, tr: _Track, t: int, z: F64, rz: F64, period_ns: float, flags: list[AttitudeFlag]
+    ) -> float | None:
+        """One IMM cycle (imm.py) with the manoeuvre gate; may RESET the track like the single-model step."""
+        assert tr.imm is not None
+        cfg = self.config
+        dt = (t - tr.t_ns) / NS if tr.t_ns is not None else 0.0
+        c, xp, pp = imm.predict(tr.imm, self._models, dt)
+        try:
+            res: imm.ImmUpdate | None = imm.update_models(c, xp, pp, z, rz)
+        except np.linalg.LinAlgError:
+            res = None
+        # the gate statistic is at most the smallest per-model NIS (the widening only enlarges S): compute it only
+        # when that NIS is outside the gate
+        if cfg.nis_gate is not None and not (res is not None and float(res.nis_models.min()) <= cfg.nis_gate):
+            widen = 0.0 if cfg.gate_accel_mps2 is None else 0.5 * cfg.gate_accel_mps2 * dt * dt
+            try:
+                g = imm.gate_nis(xp, pp, z, rz, widen)
+            except np.linalg.LinAlgError:
+                g = math.nan
+            if not g <= cfg.nis_gate and self._gate_failed(tr, t, z, rz, g, flags):
+                return None
+        if res is None or not (np.isfinite(res.x).all() and is_positive_definite(res.p)):
+            tr.restart(t, z, rz)
+            flags.append("COVARIANCE_RESET")
+            self.counters["reset_covariance"] += 1
+            return None
+        tr.imm = res.state
+        self._accept(tr, t, z, res.x, res.p, res.nis, flags, period_ns)
+        return res.nis
 
     # ------------------------------------------------------------------ outputs
     def _header(self, tr: _Track, stamp_ns: int) -> Header:
@@ -482,6 +557,10 @@ class AttitudeCore:
         los_idx = self._los_idx
         if status is None:
             valid = not invalid and all(ok[i] and sig[i] <= cfg.valid_sigma_deg for i in los_idx)
+            if valid and self._nis_bound is not None:
+                w = cfg.valid_nis_window or 1
+                recent = list(tr.nis_hist)[-w:]
+                valid = len(recent) == w and sum(recent) / w <= self._nis_bound
             status = "VALID" if valid else "CONVERGING"
 
         v = [a[i] if ok[i] else None for i in range(N_ANGLES)]
@@ -536,6 +615,7 @@ class AttitudeCore:
             turn_rate_dps=kin.psi_dot * _R2D if heading_ok else None,
             load_factor=load if heading_ok and pitch_ok and math.isfinite(load) else None,
             nis=nis,
+            model_probabilities=None if tr.imm is None else tr.imm.mu.tolist(),
             flags=flags,
             raw=self._raw_output(tr, los_dir) if raw else None,
         )

@@ -33,7 +33,8 @@ def evaluation_config(
     sigma_jerk_mps3: float = 0.03,
     **overrides: Any,
 ) -> AttitudeConfig:
-    """The configuration of the digest's reference runs: angles at every scan from scan 3 on.
+    """The configuration of the digest's reference runs: the paper's filter (``preset="paper"``), angles at every
+    scan from scan 3 on.
 
     The service's suppression rules for undefined angles (v_min, 3 sigma(V_h), 0.1 g) are switched off, because
     the digest's reference figures (P3: ~56-61 deg at scan 3) include every scan's angles; the schema's PSD
@@ -41,6 +42,7 @@ def evaluation_config(
     baseline (§2.6) is attached for the P1/P2 comparisons. Everything else is the default configuration.
     """
     fields: dict[str, Any] = {
+        "preset": "paper",
         "v_min_mps": 0.0,
         "heading_sigma_factor": 0.0,
         "min_normal_force_g": 0.0,

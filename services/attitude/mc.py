@@ -18,7 +18,10 @@ Parameters (``estimators[].params`` of the scenario, :class:`Params`):
   compare with the digest's tables; false scores the service's own configuration;
 * ``config``: any :class:`~services.attitude.config.AttitudeConfig` field (e.g. ``sigma_jerk_mps3``); the raw
   baseline is always attached;
-* ``thresholds_deg``, ``summary_scans``, ``consistency_scans``: what :func:`aggregate` reports.
+* ``thresholds_deg``, ``summary_scans``, ``consistency_scans``, ``phase_first_scan``: what :func:`aggregate`
+  reports; ``phases`` (per target and pooled over the targets): the flight-phase statistics of
+  :func:`~services.attitude.metrics.phase_table` (turns, other manoeuvres, straight legs, steady straight legs:
+  RMS per angle, NEES against its chi-square band, VALID consistency), from the truth's commanded phase.
 """
 
 from __future__ import annotations
@@ -40,7 +43,7 @@ from shared.mc_params import check_config_overrides
 from .config import AttitudeConfig
 from .core import AttitudeCore
 from .evaluation import evaluation_config
-from .metrics import ANGLE_FIELDS, RunRecorder
+from .metrics import ANGLE_FIELDS, RunRecorder, phase_samples, phase_table
 from .metrics import aggregate as aggregate_records
 from .service import ESTIMATOR
 from .simulator import AttitudeSimParams, enu_to_nue
@@ -66,6 +69,7 @@ class Params(BaseModel):
     thresholds_deg: list[float] = Field(default_factory=lambda: [5.0, 3.0], min_length=1, max_length=10)
     summary_scans: list[int] = Field(default_factory=lambda: [3, 11, 21, 41, 61, 100], max_length=1000)
     consistency_scans: list[int] = Field(default_factory=lambda: [21, 100], min_length=2, max_length=2)
+    phase_first_scan: int = Field(default=20, ge=1, description="flight-phase statistics from this scan on")
 
     @model_validator(mode="after")
     def _check(self) -> Params:
@@ -196,6 +200,7 @@ def aggregate(per_run: list[dict[str, Any]]) -> dict[str, Any]:
             core_counts[k] = core_counts.get(k, 0) + int(n)
     target_ids = list(dict.fromkeys(tid for r in per_run for tid in r["targets"]))
     out_targets: dict[str, Any] = {}
+    phase_parts: list[dict[str, Any]] = []
     for tid in target_ids:
         records = [r["targets"][tid] for r in per_run if tid in r["targets"]]
         n_scans = min(len(rec["stamp_ns"]) for rec in records)
@@ -222,6 +227,9 @@ def aggregate(per_run: list[dict[str, Any]]) -> dict[str, Any]:
             summary[name]["consistency_mean_ratio"] = agg["consistency"][name]["mean_ratio"]
         agg["summary"] = summary
         agg["first_stamp_ns"] = records[0]["stamp_ns"][0]
+        samples = phase_samples(records, first_scan=p.phase_first_scan)
+        agg["phases"] = phase_table([samples])
+        phase_parts.append(samples)
         out_targets[tid] = agg
     return {
         "runs": len(per_run),
@@ -230,6 +238,8 @@ def aggregate(per_run: list[dict[str, Any]]) -> dict[str, Any]:
         "angles": list(ANGLE_FIELDS),
         "rejected": sum(int(r["rejected"]) for r in per_run),
         "core": dict(sorted(core_counts.items())),
+        "phases": phase_table(phase_parts),
+        "phase_samples": phase_parts,
         "targets": out_targets,
     }
 

@@ -16,6 +16,8 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
+from scipy.stats import chi2
 
 from schemas import Truth
 from schemas.attitude import AttitudeEstimate
@@ -64,6 +66,47 @@ def truth_angles(truth: Truth, los_x: str = "radar_to_target", gamma_los_form: s
     }
 
 
+def truth_phase(truth: Truth) -> str | None:
+    """The commanded flight phase of a truth sample (the ``attitude`` simulator's ``extra``): ``turn`` (commanded
+    roll above 5 deg), ``manoeuvre`` (another commanded acceleration: pull-up, push-over, zero-g arc, climb entry),
+    ``straight`` (none); None when the truth does not say."""
+    extra = truth.extra
+    if "manoeuvre" not in extra:
+        return None
+    if extra.get("turn", 0.0) > 0.5:
+        return "turn"
+    return "manoeuvre" if extra["manoeuvre"] > 0.5 else "straight"
+
+
+def true_load_factor(truth: Truth, g: float = 9.81) -> float:
+    """Normal load factor n = |f - (f.i) i| / g of the true motion, f = a + (0, g, 0) (frame E, y up); NaN
+    without velocity or acceleration. Roll is undefined where n is near 0 (a zero-g arc)."""
+    v, a = truth.velocity_mps, truth.acceleration_mps2
+    if v is None or a is None:
+        return math.nan
+    speed = math.sqrt(sum(c * c for c in v))
+    if speed == 0.0:
+        return math.nan
+    i = [c / speed for c in v]
+    f = [a[0], a[1] + g, a[2]]
+    fi = sum(fc * ic for fc, ic in zip(f, i, strict=True))
+    return math.sqrt(sum((fc - fi * ic) ** 2 for fc, ic in zip(f, i, strict=True))) / g
+
+
+def state_nees(est: AttitudeEstimate, truth: Truth) -> float:
+    """NEES e^T P^-1 e of the 9-state [x Vx ax y Vy ay z Vz az] against the truth (frame E); NaN without a
+    covariance, a true velocity or acceleration. chi2 with 9 degrees of freedom for a consistent filter."""
+    if est.state is None or est.state_cov is None or truth.velocity_mps is None or truth.acceleration_mps2 is None:
+        return math.nan
+    p, v, a = truth.position_m, truth.velocity_mps, truth.acceleration_mps2
+    xt = np.array([p[0], v[0], a[0], p[1], v[1], a[1], p[2], v[2], a[2]])
+    e = np.asarray(est.state) - xt
+    try:
+        return float(e @ np.linalg.solve(np.asarray(est.state_cov), e))
+    except np.linalg.LinAlgError:
+        return math.nan
+
+
 def _err(est: float | None, true: float) -> float:
     """wrap(est - true) into (-180, 180] deg (scalar)."""
     if est is None:
@@ -84,6 +127,10 @@ class RunRecorder:
             "raw_err": {n: [] for n in ANGLE_FIELDS},
             "pos_err_m": [],
             "vel_err_mps": [],
+            "nees": [],
+            "phase": [],
+            "since_manoeuvre_s": [],
+            "load_factor_true": [],
         }
 
     def add(self, est: AttitudeEstimate | None, truth: Truth, true_angles: Mapping[str, float] | None = None) -> None:
@@ -91,6 +138,13 @@ class RunRecorder:
         rec = self.rec
         rec["stamp_ns"].append(truth.header.stamp_ns)
         rec["status"].append(None if est is None else est.status)
+        rec["phase"].append(truth_phase(truth))
+        rec["since_manoeuvre_s"].append(truth.extra.get("since_manoeuvre_s", math.nan))
+        rec["load_factor_true"].append(true_load_factor(truth))
+        if est is None or est.state is None:
+            rec["nees"].append(math.nan)
+        else:
+            rec["nees"].append(state_nees(est, truth))
         if est is None:
             for name in ANGLE_FIELDS:
                 rec["err"][name].append(math.nan)
@@ -191,4 +245,123 @@ def aggregate(
             ratio = sig / rms
         cons[name] = {"scans": [k0, k1], "ratio": ratio.tolist(), "mean_ratio": float(np.nanmean(ratio))}
     out["consistency"] = cons
+    return out
+
+
+# ------------------------------------------------------------------------------------------------ flight phases
+#: the classes of :func:`phase_samples`: the commanded phase of the truth, and ``steady`` = straight legs more
+#: than STEADY_AFTER_S after the last commanded manoeuvre
+PHASES = ("turn", "manoeuvre", "straight", "steady")
+STEADY_AFTER_S = 30.0
+#: angles scored per phase; roll-type angles only where the true normal load factor is at least MIN_LOAD_ROLL
+PHASE_ANGLES = ("psi", "theta", "gamma", "psi_los", "theta_los", "gamma_los")
+ROLL_ANGLES = frozenset({"gamma", "gamma_los"})
+MIN_LOAD_ROLL = 0.3
+NEES_DOF = 9
+
+
+def _phase_masks(rec: Mapping[str, Any], first_scan: int) -> dict[str, npt.NDArray[np.bool_]]:
+    phase = rec["phase"]
+    since = np.asarray(rec["since_manoeuvre_s"], dtype=np.float64)
+    k = np.arange(len(phase))
+    settled = k >= first_scan - 1
+    out = {name: np.array([p == name for p in phase]) & settled for name in ("turn", "manoeuvre", "straight")}
+    out["steady"] = out["straight"] & (since > STEADY_AFTER_S)
+    return out
+
+
+def phase_samples(records: Sequence[Mapping[str, Any]], first_scan: int = 20) -> dict[str, dict[str, Any]]:
+    """Sums over the runs of ONE target (records on the same scan grid) per flight phase, from scan
+    ``first_scan`` on (after the start transient), for :func:`phase_table` to pool over targets:
+
+    * ``n``, and per angle ``sq`` (sum of squared errors, deg^2) and ``count`` (defined estimates);
+    * ``anees``: per scan of the phase, (mean NEES over the runs, runs with a NEES) -- the textbook ANEES;
+    * ``nees_sum``, ``nees_n``, ``nees_in``: the per-sample NEES sum, count and count inside the chi2(9) 95 %
+      interval;
+    * ``valid``: per angle, for estimates with status VALID: count, sum of (err / sigma)^2, count within 2 sigma.
+    """
+    if not records:
+        return {}
+    masks = _phase_masks(records[0], first_scan)
+    err = {a: np.array([r["err"][a] for r in records], dtype=np.float64) for a in PHASE_ANGLES}
+    sig = {a: np.array([r["sigma"][a] for r in records], dtype=np.float64) for a in PHASE_ANGLES}
+    load = np.array([r["load_factor_true"] for r in records], dtype=np.float64)
+    nees = np.array([r["nees"] for r in records], dtype=np.float64)
+    valid = np.array([[s == "VALID" for s in r["status"]] for r in records])
+    lo9, hi9 = chi2.ppf(0.025, NEES_DOF), chi2.ppf(0.975, NEES_DOF)
+    out: dict[str, dict[str, Any]] = {}
+    for name, m in masks.items():
+        if not m.any():
+            continue
+        cols = np.flatnonzero(m)
+        entry: dict[str, Any] = {"n": int(len(records) * cols.size), "sq": {}, "count": {}, "valid": {}}
+        for a in PHASE_ANGLES:
+            e = err[a][:, cols]
+            ok = np.isfinite(e)
+            if a in ROLL_ANGLES:
+                ok &= load[:, cols] >= MIN_LOAD_ROLL
+            entry["sq"][a] = float(np.sum(np.where(ok, e * e, 0.0)))
+            entry["count"][a] = int(ok.sum())
+            s = sig[a][:, cols]
+            v = ok & valid[:, cols] & np.isfinite(s) & (s > 0.0)
+            z = np.where(v, e / np.where(v, s, 1.0), 0.0)
+            entry["valid"][a] = {
+                "n": int(v.sum()),
+                "z2": float(np.sum(z * z)),
+                "in2": int(np.sum(v & (np.abs(z) <= 2.0))),
+            }
+        nc = nees[:, cols]
+        okn = np.isfinite(nc)
+        per_scan_n = okn.sum(axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            anees = np.where(per_scan_n > 0, np.where(okn, nc, 0.0).sum(axis=0) / np.maximum(per_scan_n, 1), np.nan)
+        entry["anees"] = [(float(a_), int(n_)) for a_, n_ in zip(anees, per_scan_n, strict=True) if n_ > 0]
+        entry["nees_sum"] = float(np.sum(np.where(okn, nc, 0.0)))
+        entry["nees_n"] = int(okn.sum())
+        entry["nees_in"] = int(np.sum(okn & (nc >= lo9) & (nc <= hi9)))
+        out[name] = entry
+    return out
+
+
+def phase_table(samples: Sequence[Mapping[str, Mapping[str, Any]]]) -> dict[str, dict[str, Any]]:
+    """Pool :func:`phase_samples` of several targets: per phase the RMS error of each angle (deg), the defined
+    fraction of the heading, the NEES (mean ANEES over the phase's scans; fraction of scans whose ANEES lies in
+    its 95 % band [chi2(9N, 0.025) / N, chi2(9N, 0.975) / N] for N runs; mean per-sample NEES and the fraction
+    of samples inside the chi2(9) 95 % interval) and the VALID consistency (per angle: the share of estimates
+    VALID, the mean (err / sigma)^2 over them -- 1 if the sigmas are right -- and the fraction within 2 sigma,
+    0.954 if Gaussian and right)."""
+    out: dict[str, dict[str, Any]] = {}
+    for name in PHASES:
+        parts = [s[name] for s in samples if name in s]
+        if not parts:
+            continue
+        n = sum(p["n"] for p in parts)
+        row: dict[str, Any] = {"samples": n, "rms_deg": {}, "defined": {}, "valid": {}}
+        for a in PHASE_ANGLES:
+            cnt = sum(p["count"][a] for p in parts)
+            row["rms_deg"][a] = math.sqrt(sum(p["sq"][a] for p in parts) / cnt) if cnt else None
+            row["defined"][a] = cnt / n if n else None
+            vn = sum(p["valid"][a]["n"] for p in parts)
+            row["valid"][a] = {
+                "share": vn / n if n else None,
+                "mean_z2": sum(p["valid"][a]["z2"] for p in parts) / vn if vn else None,
+                "within_2sigma": sum(p["valid"][a]["in2"] for p in parts) / vn if vn else None,
+            }
+        anees = [(a, k) for p in parts for a, k in p["anees"]]
+        inside = [chi2.ppf(0.025, NEES_DOF * k) / k <= a <= chi2.ppf(0.975, NEES_DOF * k) / k for a, k in anees]
+        nn = sum(p["nees_n"] for p in parts)
+        runs = [k for _, k in anees]
+        row["nees"] = {
+            "anees_mean": float(np.mean([a for a, _ in anees])) if anees else None,
+            "anees_in_band": float(np.mean(inside)) if inside else None,
+            "runs_per_scan": [min(runs), max(runs)] if runs else None,
+            "band_at_min_runs": (
+                [chi2.ppf(0.025, NEES_DOF * min(runs)) / min(runs), chi2.ppf(0.975, NEES_DOF * min(runs)) / min(runs)]
+                if runs
+                else None
+            ),
+            "sample_mean": sum(p["nees_sum"] for p in parts) / nn if nn else None,
+            "sample_in_95": sum(p["nees_in"] for p in parts) / nn if nn else None,
+        }
+        out[name] = row
     return out

@@ -5,9 +5,11 @@ out-of-order plots, undefined angles, status) is the core's (digest 004 §5.5-§
 transport, the key names and the reporting. Keys (``<site>`` = ``FIXSTREAM_ATTITUDE_SITE_ID``, default the
 instance name):
 
-* in, one subscription ``fixstream/sensor/<site>/radar/<sensor>`` (``<sensor>`` = ``sensor_id``, default
-  ``*``): :class:`~schemas.RadarPlot`, :class:`~schemas.TrackEnd` and :class:`~schemas.RadarSite`. One
-  subscription, so one publisher's messages are handled in the order they were sent;
+* in, one subscription ``fixstream/sensor/<site>/radar/<sensor>/**`` (``<sensor>`` = ``sensor_id``, default
+  any): :class:`~schemas.RadarPlot` on ``.../radar/<sensor>``, :class:`~schemas.RadarSite` on
+  ``.../radar/<sensor>/site`` and :class:`~schemas.TrackEnd` on ``.../radar/<sensor>/track_end`` (one key, one
+  schema; any other type or key is refused as ``unexpected_type``). One subscription, so one publisher's
+  messages are handled in the order they were sent;
 * out: ``fixstream/fix/attitude/<site>/<target>``, one :class:`~schemas.attitude.AttitudeEstimate` per
   accepted plot (and COASTING estimates if ``coast_output``);
 * ``fixstream/diag/attitude/<instance>``: every refused input with its reason, and the events below;
@@ -16,7 +18,7 @@ instance name):
 **Refused** (counted in ``rejected_by_reason``, the state is untouched): the codec's reasons (``non_finite``
 for a NaN or infinite value, ``out_of_bounds``, ``bad_msgpack``, ``missing_field``, ...), ``unexpected_type``,
 ``invalid_target_id`` (not usable as a key chunk) and the core's ``out_of_order`` (a plot older than the
-target's last), ``duplicate_time``, ``innovation_gate``, ``wrong_site``, ``bad_sigma``.
+target's last), ``duplicate_time``, ``innovation_gate``, ``wrong_site``, ``bad_sigma``, ``degenerate_plot``.
 
 **Events** (reported, not refused: the plot is used): ``scans_missed`` (info: the plot came after a gap of
 more than ``coast_after_scans`` scans and was predicted over; its sigmas are wider), ``gap_reset``,
@@ -52,12 +54,12 @@ from shared.settings import ServiceSettings, ZenohSettings, core_config_of
 
 from .config import AttitudeConfig
 from .core import AttitudeCore
+from .topics import SITE_CHUNK, TRACK_END_CHUNK
 
 log = logging.getLogger("fixstream.attitude")
 
 #: the estimator chunk of the output keys
 ESTIMATOR = "attitude"
-_INPUTS = (RadarPlot, TrackEnd, RadarSite)
 #: estimate flags reported as events: flag -> (reason, level)
 _FLAG_EVENTS: dict[str, tuple[str, Literal["info", "warning"]]] = {
     "SCANS_MISSED": ("scans_missed", "info"),
@@ -87,8 +89,27 @@ class _TargetInfo:
 
 
 def input_key(site_id: str, sensor_id: str = "*") -> str:
-    """``fixstream/sensor/<site>/radar/<sensor>`` (``*``: any sensor id of the site)."""
-    return f"{keys.ROOT}/sensor/{keys.chunk(site_id)}/radar/{sensor_id if sensor_id == '*' else keys.chunk(sensor_id)}"
+    """``fixstream/sensor/<site>/radar/<sensor>/**``: the plots and their ``site`` and ``track_end`` keys
+    (``*``: any sensor id of the site, ``.../radar/**``)."""
+    base = f"{keys.ROOT}/sensor/{keys.chunk(site_id)}/radar"
+    return f"{base}/**" if sensor_id == "*" else f"{base}/{keys.chunk(sensor_id)}/**"
+
+
+#: the message type each key of a radar sensor carries: by the chunk after the sensor id (none: the plots)
+_KEY_TYPES: dict[str | None, type] = {None: RadarPlot, SITE_CHUNK: RadarSite, TRACK_END_CHUNK: TrackEnd}
+
+
+def _expected_type(key: str) -> type | None:
+    """The one message type of a key ``fixstream/sensor/<site>/radar/<sensor>[/<chunk>]``; None if unknown."""
+    parts = key.split("/")
+    try:
+        i = parts.index("radar")
+    except ValueError:
+        return None
+    tail = parts[i + 2 :]
+    if len(tail) > 1:
+        return None
+    return _KEY_TYPES.get(tail[0] if tail else None)
 
 
 def output_key(site_id: str, target_id: str) -> str:
@@ -163,9 +184,11 @@ class AttitudeService(Service):
     def on_sample(self, key: str, payload: bytes, encoding: str) -> list[Output]:
         """One sample of the site: decode (the base reports a DecodeError), check, run the core."""
         msg = codec.decode(payload, encoding)
-        if not isinstance(msg, _INPUTS):
-            allowed = ", ".join(m.__name__ for m in _INPUTS)
-            raise InputRejected("unexpected_type", f"{type(msg).__name__} on {key}; expects {allowed}")
+        expected = _expected_type(key)
+        if expected is None or not isinstance(msg, expected):
+            want = "nothing (unknown key)" if expected is None else expected.__name__
+            raise InputRejected("unexpected_type", f"{type(msg).__name__} on {key}; this key carries {want}")
+        assert isinstance(msg, RadarPlot | RadarSite | TrackEnd)
         if isinstance(msg, RadarPlot) and not _chunk_ok(msg.target_id):
             raise InputRejected("invalid_target_id", f"target id {msg.target_id!r} is not a key chunk")
         produced = self.core.step(msg)  # InputRejected propagates: the base counts and reports it

@@ -9,11 +9,13 @@ independent Gaussian noise (§4.6). The paper's scenario (§3.1) is :func:`paper
 
 from __future__ import annotations
 
+import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 from scipy.integrate import solve_ivp
 
 from schemas import Header, Message, RadarPlot, Truth
@@ -27,12 +29,56 @@ NS = 1_000_000_000
 
 @dataclass(frozen=True)
 class Segment:
-    """A manoeuvre segment: rates ramp linearly from the first to the second value over the segment."""
+    """A manoeuvre segment: rates ramp linearly from the first to the second value over the segment.
+
+    Either kinematic rates (``turn_rate_dps``, ``pitch_rate_dps``) or, when ``bank_deg`` or ``load_factor`` is
+    given, the coordinated-flight equations of §1.6 drive the path (both ramped linearly, ``None`` = not used):
+
+        V theta_dot = n g cos(gamma) - g cos(theta),     V psi_dot cos(theta) = n g sin(gamma)
+
+    with ``load_factor`` n (default: the n that keeps theta constant, n = cos(theta) / cos(gamma)) and bank
+    gamma (``bank_deg``, default 0). The kinematic rates are added on top. ``gravity_speed`` adds
+    dV/dt = -g sin(theta) (an unpowered pull-up or zero-g parabola) to ``accel_mps2``.
+    """
 
     duration_s: float
     turn_rate_dps: tuple[float, float] = (0.0, 0.0)  # d(psi)/dt, deg/s, + clockwise seen from above
     pitch_rate_dps: tuple[float, float] = (0.0, 0.0)  # d(theta)/dt of the flight-path angle, deg/s
     accel_mps2: float = 0.0  # dV/dt, m/s^2
+    bank_deg: tuple[float, float] | None = None  # coordinated bank gamma, deg, + right wing down
+    load_factor: tuple[float, float] | None = None  # normal load factor n (lift / weight)
+    gravity_speed: bool = False  # dV/dt also gets -g sin(theta)
+
+
+@dataclass(frozen=True)
+class Wander:
+    """Small random manoeuvres of a flying aircraft (light turbulence, pilot corrections): independent
+    Ornstein-Uhlenbeck accelerations across the path (horizontal), normal to it (vertical) and along it, each of
+    standard deviation ``sigma_*_mps2`` and correlation time ``tau_s``, sampled every ``step_s`` and interpolated
+    linearly; the realisation is fixed by ``seed``. The jerk of an OU acceleration has the spectral density
+    2 sigma^2 / tau, which a random-jerk model of period T matches with sigma_j^2 = 2 sigma^2 / (tau T)
+    (sigma = 0.2 m/s^2, tau = 20 s, T = 5 s: sigma_j = 0.028 m/s^3, the digest's 0.03)."""
+
+    sigma_lat_mps2: float = 0.2
+    sigma_vert_mps2: float = 0.2
+    sigma_long_mps2: float = 0.05
+    tau_s: float = 20.0
+    seed: int = 0
+    step_s: float = 1.0
+
+    def sample(self, t_end_s: float) -> tuple[F64, F64]:
+        """(grid times (n,), accelerations (n, 3) = [lateral, vertical, longitudinal]) over [0, t_end_s]."""
+        n = math.ceil(t_end_s / self.step_s) + 2
+        t = np.arange(n, dtype=np.float64) * self.step_s
+        rng = np.random.default_rng(self.seed)
+        sig = np.array([self.sigma_lat_mps2, self.sigma_vert_mps2, self.sigma_long_mps2])
+        phi = math.exp(-self.step_s / self.tau_s)
+        e = rng.standard_normal((n, 3)) * sig * math.sqrt(1.0 - phi * phi)
+        a = np.empty((n, 3))
+        a[0] = rng.standard_normal(3) * sig  # stationary start
+        for k in range(1, n):
+            a[k] = phi * a[k - 1] + e[k]
+        return t, a
 
 
 @dataclass(frozen=True)
@@ -44,6 +90,7 @@ class FlightPlan:
     psi_deg: float
     theta_deg: float = 0.0
     segments: tuple[Segment, ...] = ()
+    wander: Wander | None = None  # small random manoeuvres on top of the segments (None: exact segments)
 
 
 @dataclass(frozen=True)
@@ -103,7 +150,7 @@ def fly(plan: FlightPlan, times_s: Sequence[float] | F64, g: float = G_TRUTH_MPS
     """Sample the true trajectory of a flight plan at ``times_s`` (s, ascending, >= 0)."""
     t = np.asarray(times_s, dtype=np.float64)
     psi0, th0 = math.radians(plan.psi_deg), math.radians(plan.theta_deg)
-    if not plan.segments:  # straight line: closed form
+    if not plan.segments and plan.wander is None:  # straight line: closed form
         i0, _, _ = _unit(np.array([psi0]), np.array([th0]))
         v = np.repeat(i0 * plan.speed_mps, t.size, axis=0)
         p = np.asarray(plan.p0_m) + v * t[:, None]
@@ -118,33 +165,72 @@ def fly(plan: FlightPlan, times_s: Sequence[float] | F64, g: float = G_TRUTH_MPS
     t_end = max(float(t.max()), bounds[-1]) + 1.0
     segs = [*plan.segments, Segment(duration_s=t_end - bounds[-1])]
     bounds.append(t_end)
+    grid_step, wander_acc = 1.0, np.zeros((2, 3))
+    if plan.wander is not None:
+        grid_step = plan.wander.step_s
+        wander_acc = plan.wander.sample(t_end)[1]
+    wander_on = plan.wander is not None
 
-    def rates(k: int, tt: F64 | float) -> tuple[F64 | float, F64 | float, float]:
+    def forcing(tt: float) -> tuple[float, float, float]:
+        """The wander's (lateral, vertical, longitudinal) acceleration at tt, linear between grid samples."""
+        u = tt / grid_step
+        i = min(max(int(u), 0), wander_acc.shape[0] - 2)
+        f = u - i
+        lo, hi = wander_acc[i], wander_acc[i + 1]
+        return (
+            float(lo[0] + f * (hi[0] - lo[0])),
+            float(lo[1] + f * (hi[1] - lo[1])),
+            float(lo[2] + f * (hi[2] - lo[2])),
+        )
+
+    def rates(k: int, tt: float, speed: float, theta: float) -> tuple[float, float, float]:
+        """(d psi/dt, d theta/dt, dV/dt) of segment k at time tt, speed (m/s) and flight-path angle (rad)."""
         seg = segs[k]
-        f = (np.asarray(tt) - bounds[k]) / seg.duration_s
-        w = math.radians(seg.turn_rate_dps[0]) + f * math.radians(seg.turn_rate_dps[1] - seg.turn_rate_dps[0])
-        q = math.radians(seg.pitch_rate_dps[0]) + f * math.radians(seg.pitch_rate_dps[1] - seg.pitch_rate_dps[0])
-        return w, q, seg.accel_mps2
+        f = (tt - bounds[k]) / seg.duration_s
+        w = math.radians(seg.turn_rate_dps[0] + f * (seg.turn_rate_dps[1] - seg.turn_rate_dps[0]))
+        q = math.radians(seg.pitch_rate_dps[0] + f * (seg.pitch_rate_dps[1] - seg.pitch_rate_dps[0]))
+        vdot = seg.accel_mps2 - (g * math.sin(theta) if seg.gravity_speed else 0.0)
+        ct = math.cos(theta)
+        if seg.bank_deg is not None or seg.load_factor is not None:
+            bank = 0.0
+            if seg.bank_deg is not None:
+                bank = math.radians(seg.bank_deg[0] + f * (seg.bank_deg[1] - seg.bank_deg[0]))
+            if seg.load_factor is not None:
+                n = seg.load_factor[0] + f * (seg.load_factor[1] - seg.load_factor[0])
+            else:
+                n = ct / math.cos(bank)
+            w += n * g * math.sin(bank) / (speed * ct)
+            q += (n * g * math.cos(bank) - g * ct) / speed
+        if wander_on:
+            lat, vert, lon = forcing(tt)
+            w += lat / (speed * ct)
+            q += vert / speed
+            vdot += lon
+        return w, q, vdot
+
+    def deriv(k: int, tt: float, s: Sequence[float]) -> list[float]:
+        w, q, vdot = rates(k, tt, s[3], s[5])
+        ct = math.cos(s[5])
+        return [s[3] * ct * math.cos(s[4]), s[3] * math.sin(s[5]), s[3] * ct * math.sin(s[4]), vdot, w, q]
 
     y = np.array([*plan.p0_m, plan.speed_mps, psi0, th0], dtype=np.float64)
     out = np.empty((t.size, 6))
     seg_of = np.clip(np.searchsorted(bounds, t, side="right") - 1, 0, len(segs) - 1)
     for k in range(len(segs)):
-
-        def rhs(tt: float, s: F64, k: int = k) -> list[float]:
-            w, q, acc = rates(k, tt)
-            ct = math.cos(s[5])
-            return [
-                s[3] * ct * math.cos(s[4]),
-                s[3] * math.sin(s[5]),
-                s[3] * ct * math.sin(s[4]),
-                acc,
-                float(w),
-                float(q),
-            ]
-
         mask = seg_of == k
-        sol = solve_ivp(rhs, (bounds[k], bounds[k + 1]), y, method="DOP853", rtol=1e-11, atol=1e-9, dense_output=True)
+        seg_deriv = functools.partial(deriv, k)
+        if wander_on:  # piecewise-linear forcing: fixed-step RK4 landing on the sample times
+            y = _rk4(seg_deriv, bounds[k], bounds[k + 1], y, t[mask], out, np.flatnonzero(mask))
+            continue
+        sol = solve_ivp(
+            seg_deriv,
+            (bounds[k], bounds[k + 1]),
+            y,
+            method="DOP853",
+            rtol=1e-11,
+            atol=1e-9,
+            dense_output=True,
+        )
         if mask.any():
             assert sol.sol is not None
             out[mask] = sol.sol(t[mask]).T
@@ -155,14 +241,46 @@ def fly(plan: FlightPlan, times_s: Sequence[float] | F64, g: float = G_TRUTH_MPS
     w = np.empty(t.size)
     q = np.empty(t.size)
     acc = np.empty(t.size)
-    for k in range(len(segs)):
-        mask = seg_of == k
-        if mask.any():
-            wk, qk, ak = rates(k, t[mask])
-            w[mask], q[mask], acc[mask] = wk, qk, ak
+    for n_, (k, tt) in enumerate(zip(seg_of.tolist(), t.tolist(), strict=True)):
+        w[n_], q[n_], acc[n_] = rates(k, tt, float(speed[n_]), float(theta[n_]))
     v = speed[:, None] * i
     a = acc[:, None] * i + speed[:, None] * (w[:, None] * di_dpsi + q[:, None] * di_dth)
     return TruthStates(t, p, v, a, np.mod(psi, 2 * math.pi), theta, coordinated_roll(v, a, g))
+
+
+#: step of the fixed-step integration of a wandering flight, s (a quarter of the wander's grid step at most)
+RK4_STEP_S = 0.25
+
+
+def _rk4(
+    deriv: Callable[[float, list[float]], list[float]],
+    t0: float,
+    t1: float,
+    y: F64,
+    samples_s: F64,
+    out: F64,
+    rows: npt.NDArray[np.intp],
+) -> F64:
+    """Classic 4th-order Runge-Kutta from t0 to t1 with steps of at most RK4_STEP_S that land on every sample
+    time (the forcing is smooth between the steps' ends); writes the state at samples_s into out[rows] and
+    returns the state at t1."""
+    stops = np.unique(np.concatenate([np.linspace(t0, t1, max(2, math.ceil((t1 - t0) / RK4_STEP_S) + 1)), samples_s]))
+    want = dict(zip(samples_s.tolist(), rows.tolist(), strict=True))
+    ys = np.asarray(y, dtype=np.float64).tolist()
+    t_prev = float(stops[0])
+    if t_prev in want:
+        out[want[t_prev]] = ys
+    for t_next in stops[1:].tolist():
+        h = t_next - t_prev
+        k1 = deriv(t_prev, ys)
+        k2 = deriv(t_prev + 0.5 * h, [a + 0.5 * h * b for a, b in zip(ys, k1, strict=True)])
+        k3 = deriv(t_prev + 0.5 * h, [a + 0.5 * h * b for a, b in zip(ys, k2, strict=True)])
+        k4 = deriv(t_next, [a + h * b for a, b in zip(ys, k3, strict=True)])
+        ys = [a + h / 6.0 * (b + 2.0 * c + 2.0 * d + e) for a, b, c, d, e in zip(ys, k1, k2, k3, k4, strict=True)]
+        t_prev = t_next
+        if t_prev in want:
+            out[want[t_prev]] = ys
+    return np.asarray(ys, dtype=np.float64)
 
 
 def true_spherical(p: F64) -> tuple[F64, F64, F64]:

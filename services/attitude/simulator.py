@@ -6,10 +6,11 @@ manoeuvring plans, or a start state plus turn/climb/acceleration segments given 
 true (range, azimuth, elevation) + independent Gaussian noise with the radar's sigmas (§4.6). Keys
 (``<site>`` = ``site_id``, ``<sensor>`` = ``sensor_id``, default ``plots``):
 
-* ``fixstream/sensor/<site>/radar/<sensor>``: one :class:`~schemas.RadarSite` at t = 0 (the site's sigmas and
-  scan period, unless ``publish_site: false``), then every :class:`~schemas.RadarPlot` in stamp order, and a
-  :class:`~schemas.TrackEnd` after a target's last plot when it has ``track_end: true``. One key, so the
-  service sees them in the order they were made;
+* ``fixstream/sensor/<site>/radar/<sensor>``: every :class:`~schemas.RadarPlot` in stamp order;
+  ``.../<sensor>/site``: one :class:`~schemas.RadarSite` at t = 0 (the site's sigmas and scan period, unless
+  ``publish_site: false``); ``.../<sensor>/track_end``: a :class:`~schemas.TrackEnd` after a target's last plot
+  when it has ``track_end: true``. One key per message type; the service subscribes to ``.../<sensor>/**``
+  with one subscriber, so it sees one publisher's messages in the order they were made;
 * ``fixstream/truth/<target id>``: :class:`~schemas.Truth` at every scan time of the target (also when its
   plot is missing), unless ``publish_truth: false``: position, velocity and acceleration ``[east, north, up]``
   in the scenario frame (the radar at ``site_position_m``), ``attitude_rad`` = [heading, pitch, roll] of the
@@ -27,7 +28,7 @@ from __future__ import annotations
 import heapq
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Annotated, Literal
 
 import numpy as np
@@ -47,16 +48,17 @@ from shared import keys
 
 from .config import RADAR_PRESETS, MeasurementSigmas, RadarPreset
 from .simulation import (
-    G_TRUTH_MPS2,
     FlightPlan,
     Segment,
     TruthStates,
+    Wander,
     fly,
     manoeuvring_plans,
     measure,
     paper_plan,
     true_spherical,
 )
+from .topics import radar_key, site_key, track_end_key
 
 KeyChunk = Annotated[str, AfterValidator(keys.chunk)]
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -66,11 +68,6 @@ Rate = float | Annotated[list[float], Field(min_length=2, max_length=2)]
 NAMED_PLANS = ("paper", "turn30", "climb10", "weave")
 #: plot order within one stamp: the site first, then per target (file order): truth, plot, track end
 _SITE, _TRUTH, _PLOT, _END = 0, 1, 2, 3
-
-
-def radar_key(site_id: str, sensor_id: str = "plots") -> str:
-    """``fixstream/sensor/<site>/radar/<sensor>``: where a site's plots, track ends and site messages go."""
-    return keys.sensor(site_id, "radar", sensor_id)
 
 
 def enu_to_nue(v: np.ndarray) -> np.ndarray:
@@ -114,16 +111,22 @@ class StartParams(SimParams):
 
 
 class SegmentParams(SimParams):
-    """One manoeuvre segment; a rate is a constant or ``[from, to]``, ramped linearly over the segment."""
+    """One manoeuvre segment; a rate, bank or load factor is a constant or ``[from, to]``, ramped linearly over the
+    segment. ``bank_deg`` and ``load_factor`` fly the coordinated-flight equations (``simulation.Segment``)."""
 
     duration_s: float = Field(gt=0.0, le=1e6, description="s")
     turn_rate_dps: Rate = Field(default=0.0, description="d(heading)/dt, deg/s, + to starboard (clockwise)")
-    bank_deg: float | None = Field(
+    bank_deg: Rate | None = Field(
         default=None,
-        gt=-80.0,
-        lt=80.0,
-        description="coordinated level turn at this bank: turn rate g tan(bank) / V (instead of turn_rate_dps)",
+        description="coordinated turn at this bank, deg (+ right wing down): turn rate n g sin(bank) / (V cos(pitch)), "
+        "with n = cos(pitch) / cos(bank) unless load_factor is given (a level turn: g tan(bank) / V)",
     )
+    load_factor: Rate | None = Field(
+        default=None,
+        description="normal load factor n (lift / weight; 1 = level flight, 2 = a 2 g pull-up, 0 = a zero-g parabola): "
+        "d(pitch)/dt = (n g cos(bank) - g cos(pitch)) / V",
+    )
+    gravity_speed: bool = Field(default=False, description="the speed also changes by -g sin(pitch) (unpowered arc)")
     pitch_rate_dps: Rate = Field(default=0.0, description="d(flight-path angle)/dt, deg/s, + nose up")
     accel_mps2: float = Field(default=0.0, ge=-50.0, le=50.0, description="dV/dt along the path, m/s^2")
 
@@ -133,9 +136,28 @@ class SegmentParams(SimParams):
             for r in _pair(getattr(self, name)):
                 if abs(r) > 30.0:
                     raise ValueError(f"{name}: |rate| must be at most 30 deg/s, got {r}")
-        if self.bank_deg is not None and (self.turn_rate_dps != 0.0 or self.accel_mps2 != 0.0):
-            raise ValueError("bank_deg sets the turn rate at constant speed: no turn_rate_dps or accel_mps2 with it")
+        if self.bank_deg is not None:
+            if any(abs(b) >= 80.0 for b in _pair(self.bank_deg)):
+                raise ValueError("bank_deg: |bank| must be below 80 deg")
+            if self.turn_rate_dps != 0.0:
+                raise ValueError("bank_deg sets the turn rate: no turn_rate_dps with it")
+        if self.load_factor is not None and any(not -3.0 <= n <= 9.0 for n in _pair(self.load_factor)):
+            raise ValueError("load_factor: n must be within [-3, 9]")
         return self
+
+    def coordinated(self) -> bool:
+        """True if the coordinated-flight equations drive this segment (bank or load factor given)."""
+        return self.bank_deg is not None or self.load_factor is not None
+
+
+class WanderParams(SimParams):
+    """Small random manoeuvres (light turbulence, pilot corrections): Ornstein-Uhlenbeck accelerations across,
+    normal to and along the path (``simulation.Wander``); a new realisation every run (stream ``wander/<id>``)."""
+
+    sigma_lat_mps2: float = Field(default=0.2, ge=0.0, le=5.0, description="across the path, horizontal, m/s^2")
+    sigma_vert_mps2: float = Field(default=0.2, ge=0.0, le=5.0, description="normal to the path, vertical, m/s^2")
+    sigma_long_mps2: float = Field(default=0.05, ge=0.0, le=5.0, description="along the path, m/s^2")
+    tau_s: float = Field(default=20.0, gt=0.0, le=3600.0, description="correlation time, s")
 
 
 def _pair(rate: float | list[float]) -> tuple[float, float]:
@@ -160,6 +182,9 @@ class TargetParams(SimParams):
     )
     p_detect: float = Field(default=1.0, gt=0.0, le=1.0, description="probability that a scan gives a plot")
     track_end: bool = Field(default=False, description="publish a TrackEnd right after the last plot")
+    wander: WanderParams | None = Field(
+        default=None, description="small random manoeuvres on top of the plan, a new realisation every run"
+    )
 
     @model_validator(mode="after")
     def _one_plan(self) -> TargetParams:
@@ -172,6 +197,8 @@ class TargetParams(SimParams):
         if self.start is not None:
             speed, pitch = self.start.speed_mps, self.start.pitch_deg
             for i, seg in enumerate(self.segments):
+                if seg.coordinated() or seg.gravity_speed:
+                    break  # the path then follows the equations of motion: checked when it is flown
                 speed += seg.accel_mps2 * seg.duration_s
                 p0, p1 = _pair(seg.pitch_rate_dps)
                 pitch += 0.5 * (p0 + p1) * seg.duration_s
@@ -188,15 +215,18 @@ class TargetParams(SimParams):
             return manoeuvring_plans()[self.plan]
         assert self.start is not None
         st = self.start
-        speed = st.speed_mps
-        segs = []
-        for seg in self.segments:
-            turn = _pair(seg.turn_rate_dps)
-            if seg.bank_deg is not None:
-                w = math.degrees(G_TRUTH_MPS2 * math.tan(math.radians(seg.bank_deg)) / speed)
-                turn = (w, w)
-            segs.append(Segment(seg.duration_s, turn, _pair(seg.pitch_rate_dps), seg.accel_mps2))
-            speed += seg.accel_mps2 * seg.duration_s
+        segs = [
+            Segment(
+                seg.duration_s,
+                _pair(seg.turn_rate_dps),
+                _pair(seg.pitch_rate_dps),
+                seg.accel_mps2,
+                bank_deg=None if seg.bank_deg is None else _pair(seg.bank_deg),
+                load_factor=None if seg.load_factor is None else _pair(seg.load_factor),
+                gravity_speed=seg.gravity_speed,
+            )
+            for seg in self.segments
+        ]
         return FlightPlan(
             p0_m=st.position_nue(),
             speed_mps=st.speed_mps,
@@ -278,6 +308,11 @@ class AttitudeSimParams(SimParams):
         )
 
 
+#: a commanded acceleration above this (m/s^2) is a manoeuvre; a commanded roll above TURN_ROLL_DEG is a turn
+MANOEUVRE_ACCEL_MPS2 = 1e-3
+TURN_ROLL_DEG = 5.0
+
+
 class TargetTruth:
     """Exact truth of one target in the scenario frame (a :class:`~services.player.simulators.TruthSource`)."""
 
@@ -288,6 +323,25 @@ class TargetTruth:
     def states(self, stamps_ns: np.ndarray) -> TruthStates:
         """The core's truth (radar frame E) at the stamps."""
         return fly(self.plan, np.asarray(stamps_ns, dtype=np.float64) / NS_PER_S)
+
+    def phases(self, stamps_ns: np.ndarray) -> dict[str, np.ndarray]:
+        """What the plan commands at the stamps (the plan without its wander): ``manoeuvre`` (1.0 while a segment
+        commands an acceleration), ``turn`` (1.0 while the commanded roll exceeds TURN_ROLL_DEG) and
+        ``since_manoeuvre_s`` (time since a commanded manoeuvre last ended; the stamp's time if there was none)."""
+        t = np.asarray(stamps_ns, dtype=np.float64) / NS_PER_S
+        if not self.plan.segments:
+            zero = np.zeros(t.size)
+            return {"manoeuvre": zero, "turn": zero, "since_manoeuvre_s": t.copy()}
+        base = fly(replace(self.plan, wander=None), t)
+        man = np.linalg.norm(base.a, axis=1) > MANOEUVRE_ACCEL_MPS2
+        turn = np.abs(np.degrees(base.gamma)) > TURN_ROLL_DEG
+        since = np.empty(t.size)
+        last_end = 0.0
+        for k in range(t.size):
+            if man[k]:
+                last_end = t[k]
+            since[k] = t[k] - last_end
+        return {"manoeuvre": man.astype(np.float64), "turn": turn.astype(np.float64), "since_manoeuvre_s": since}
 
     def truth_at(self, stamps_ns: np.ndarray) -> TruthState:
         st = self.states(stamps_ns)
@@ -324,9 +378,11 @@ class AttitudeRadar:
         self.rng = rng
         self.context = context
         self.key = radar_key(params.site_id, params.sensor_id)
+        self.site_key = site_key(params.site_id, params.sensor_id)
+        self.end_key = track_end_key(params.site_id, params.sensor_id)
         self.sigmas = params.sigmas()
         self.targets = [
-            _Target(t.id, t.flight_plan(), t.phase_s, t.end_s, frozenset(t.missed_scans), t.p_detect, t.track_end)
+            _Target(t.id, self._wandering(t), t.phase_s, t.end_s, frozenset(t.missed_scans), t.p_detect, t.track_end)
             for t in params.targets
         ]
         if params.random_targets is not None:
@@ -337,6 +393,16 @@ class AttitudeRadar:
         self.truths = {t.id: TargetTruth(t.plan, params.site_position_m) for t in self.targets}
         for tid, source in self.truths.items():
             context.register_platform(tid, source)
+
+    def _wandering(self, target: TargetParams) -> FlightPlan:
+        """The target's plan with its wander, a realisation drawn from the stream ``wander/<id>`` of this run."""
+        plan = target.flight_plan()
+        w = target.wander
+        if w is None:
+            return plan
+        seed = int(child_rng(self.rng, f"wander/{target.id}").integers(0, 2**63 - 1))
+        wander = Wander(w.sigma_lat_mps2, w.sigma_vert_mps2, w.sigma_long_mps2, w.tau_s, seed)
+        return replace(plan, wander=wander)
 
     def _random_targets(self, spec: RandomTargets, rng: np.random.Generator) -> list[_Target]:
         out = []
@@ -376,7 +442,7 @@ class AttitudeRadar:
             sigma_el_deg=self.sigmas.sigma_el_deg,
             scan_period_s=p.scan_period_s,
         )
-        return Event(0, self.key, msg)
+        return Event(0, self.site_key, msg)
 
     def _target_events(self, index: int, target: _Target) -> Iterator[tuple[int, int, int, int, Event]]:
         """(stamp, target index, kind, k, event) of one target, in stamp order."""
@@ -396,6 +462,7 @@ class AttitudeRadar:
         site = np.asarray(p.site_position_m)
         pos, vel, acc = site + nue_to_enu(truth.p), nue_to_enu(truth.v), nue_to_enu(truth.a)
         truth_key = keys.truth(target.id)
+        phases = self.truths[target.id].phases(stamps) if p.publish_truth else {}
         last_plot = int(np.flatnonzero(detected)[-1]) if detected.any() else -1
         for k, stamp in enumerate(stamps.tolist()):
             header = self.context.header(stamp)
@@ -412,6 +479,7 @@ class AttitudeRadar:
                         "az_deg": math.degrees(float(beta[k])),
                         "el_deg": math.degrees(float(eps[k])),
                         "speed_mps": float(np.linalg.norm(truth.v[k])),
+                        **{name: float(v[k]) for name, v in phases.items()},
                     },
                 )
                 yield (stamp, index, _TRUTH, k, Event(stamp, truth_key, msg))
@@ -423,7 +491,7 @@ class AttitudeRadar:
                 yield (stamp, index, _PLOT, k, Event(stamp, self.key, plot))
             if target.track_end and k == last_plot:
                 end = TrackEnd(header=header, site_id=p.site_id, target_id=target.id)
-                yield (stamp, index, _END, k, Event(stamp, self.key, end))
+                yield (stamp, index, _END, k, Event(stamp, self.end_key, end))
 
     def events(self) -> Iterator[Event]:
         streams = [self._target_events(i, t) for i, t in enumerate(self.targets)]
@@ -442,7 +510,10 @@ __all__ = [
     "StartParams",
     "TargetParams",
     "TargetTruth",
+    "WanderParams",
     "enu_to_nue",
     "nue_to_enu",
     "radar_key",
+    "site_key",
+    "track_end_key",
 ]

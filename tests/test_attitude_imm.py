@@ -1,0 +1,206 @@
+"""The interacting-multiple-model filter of the default preset (services/attitude/imm.py), unit by unit.
+
+References are independent of the implementation: the Markov chain's closed form, the mixture moments written as
+E[x x^T] - E[x] E[x]^T, the single Kalman filter of eq. (3) (filter.predict / filter.update), the closed-form
+white-jerk process noise and the stationary variance of a first-order Markov acceleration.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from schemas import Header, RadarPlot
+from services.attitude import AttitudeConfig, AttitudeCore, imm
+from services.attitude.config import MANOEUVRE_MODELS, MotionModel
+from services.attitude.filter import predict, update
+from services.attitude.geometry import convert_plot
+from services.attitude.initiation import fsf_estimate
+from services.attitude.models import singer_axis, transition
+from services.attitude.simulation import NS, fly, measure, paper_plan, scan_times
+
+CA = MotionModel(name="ca", kind="ca", sigma_jerk_mps3=0.03, sojourn_s=100.0)
+
+
+def random_spd(rng: np.random.Generator, n: int = 9) -> np.ndarray:
+    a = rng.standard_normal((n, n))
+    return a @ a.T + n * np.eye(n)
+
+
+def test_transition_probabilities_are_the_markov_chain_over_dt() -> None:
+    for dt in (0.5, 5.0, 37.0):
+        pi = imm.transition_probabilities(MANOEUVRE_MODELS, dt)
+        assert pi.sum(axis=1) == pytest.approx(np.ones(3), abs=1e-15)
+        for i, m in enumerate(MANOEUVRE_MODELS):
+            assert pi[i, i] == pytest.approx(math.exp(-dt / m.sojourn_s), rel=1e-14)
+            others = [pi[i, j] for j in range(3) if j != i]
+            assert others[0] == pytest.approx(others[1]) and others[0] > 0.0
+    assert imm.transition_probabilities((CA,), 5.0).tolist() == [[1.0]]
+
+
+def test_mixing_probabilities_sum_to_one_and_mixing_is_convex() -> None:
+    rng = np.random.default_rng(4)
+    xs = rng.standard_normal((3, 9)) * 100.0
+    ps = np.stack([random_spd(rng) for _ in range(3)])
+    state = imm.ImmState(xs, ps, np.array([0.7, 0.2, 0.1]))
+    pi = imm.transition_probabilities(MANOEUVRE_MODELS, 5.0)
+    c, x0, p0 = imm.mix(state, pi)
+    assert c == pytest.approx(state.mu @ pi, rel=1e-14) and c.sum() == pytest.approx(1.0, abs=1e-15)
+    # mu_i|j = pi_ij mu_i / c_j: every column sums to 1, so the mixed means are convex combinations
+    w = state.mu[:, None] * pi / c[None, :]
+    assert w.sum(axis=0) == pytest.approx(np.ones(3), abs=1e-15)
+    assert x0 == pytest.approx(w.T @ xs, rel=1e-12)
+    for j in range(3):  # covariance of the mixture of the component Gaussians with weights mu_i|j
+        second = sum(w[i, j] * (ps[i] + np.outer(xs[i], xs[i])) for i in range(3))
+        assert p0[j] == pytest.approx(second - np.outer(x0[j], x0[j]), rel=1e-8, abs=1e-6)
+    # equal components: mixing changes nothing
+    same = imm.ImmState(np.repeat(xs[:1], 3, axis=0), np.repeat(ps[:1], 3, axis=0), state.mu)
+    _, x1, p1 = imm.mix(same, pi)
+    assert np.allclose(x1, xs[0], rtol=0, atol=1e-9) and np.allclose(p1, ps[0], rtol=1e-12, atol=1e-9)
+
+
+def test_combine_is_the_moment_matched_mixture() -> None:
+    rng = np.random.default_rng(5)
+    xs = rng.standard_normal((3, 9)) * 10.0
+    ps = np.stack([random_spd(rng) for _ in range(3)])
+    mu = np.array([0.5, 0.3, 0.2])
+    x, p = imm.combine(xs, ps, mu)
+    second = sum(mu[j] * (ps[j] + np.outer(xs[j], xs[j])) for j in range(3))
+    assert x == pytest.approx(mu @ xs, rel=1e-13)
+    assert p == pytest.approx(second - np.outer(x, x), rel=1e-9, abs=1e-9)
+    assert np.array_equal(p, p.T) and np.linalg.eigvalsh(p).min() > 0.0
+
+
+def _plots(n: int, seed: int) -> tuple[list[float], list[tuple[np.ndarray, np.ndarray]]]:
+    cfg = AttitudeConfig()
+    times = scan_times(n, 5.0).tolist()
+    meas = measure(fly(paper_plan(), times), cfg.measurement_sigmas(), np.random.default_rng(seed))[0]
+    sig = cfg.measurement_sigmas()
+    out = []
+    for r, az, el in meas.tolist():
+        out.append(
+            convert_plot(
+                r,
+                math.radians(az),
+                math.radians(el),
+                sig.sigma_r_m,
+                *map(math.radians, (sig.sigma_az_deg, sig.sigma_el_deg)),
+            )
+        )
+    return times, out
+
+
+@pytest.mark.parametrize("n_models", [1, 3])
+def test_imm_of_equal_models_is_the_kalman_filter_of_eq3(n_models: int) -> None:
+    """M equal models: the mixing and the model probabilities cannot change anything, so every cycle must give
+    the single Kalman filter's alpha and P (filter.predict / filter.update, eq. 3) -- computed independently."""
+    times, plots = _plots(40, seed=9)
+    x, p = fsf_estimate(
+        np.array(times[:3]) - times[2], np.stack([z for z, _ in plots[:3]]), np.stack([r for _, r in plots[:3]])
+    )
+    models = (CA,) * n_models
+    state = imm.ImmState.start(x, p, tuple([1.0 / n_models] * n_models))
+    kx, kp = x, p
+    for k in range(3, 40):
+        dt = times[k] - times[k - 1]
+        z, rz = plots[k]
+        res = imm.step(state, models, dt, z, rz)
+        xp, pp = predict(kx, kp, dt, (0.03**2,) * 3)
+        kx, kp, nis = update(xp, pp, z, rz)
+        assert res.x == pytest.approx(kx, rel=1e-9, abs=1e-9)
+        assert res.p == pytest.approx(kp, rel=1e-9, abs=1e-12)
+        assert res.nis == pytest.approx(nis, rel=1e-9)
+        assert res.state.mu == pytest.approx(np.full(n_models, 1.0 / n_models), abs=1e-12)
+        state = res.state
+
+
+def test_core_with_equal_models_gives_the_paper_filter() -> None:
+    """Through the whole core: the IMM of three copies of the paper's model (same gate, same status rules) gives
+    the paper preset's estimates."""
+    truth = fly(paper_plan(), scan_times(60, 5.0))
+    meas = measure(truth, AttitudeConfig().measurement_sigmas(), np.random.default_rng(3))[0].tolist()
+    plots = [
+        RadarPlot(
+            header=Header(stamp_ns=round(5.0 * k * NS)), site_id="r1", target_id="a", range_m=r, az_deg=az, el_deg=el
+        )
+        for k, (r, az, el) in enumerate(meas)
+    ]
+    paper = AttitudeCore(AttitudeConfig(preset="paper"))
+    same = AttitudeCore(
+        AttitudeConfig(preset="paper", motion="imm", imm_models=(CA, CA, CA), imm_initial_probabilities=(0.2, 0.3, 0.5))
+    )
+    mu = np.array([0.2, 0.3, 0.5])  # equal likelihoods: mu only follows the Markov chain, mu <- mu pi
+    pi = imm.transition_probabilities((CA, CA, CA), 5.0)
+    for pl in plots:
+        a, b = paper.step(pl)[0], same.step(pl)[0]
+        assert a.status == b.status and a.flags == b.flags
+        if a.state is not None:
+            assert b.state == pytest.approx(a.state, rel=1e-9, abs=1e-8)
+            for f in ("psi_los_deg", "theta_los_deg", "gamma_los_deg", "sigma_psi_los_deg", "gamma_deg"):
+                va, vb = getattr(a, f), getattr(b, f)
+                assert (va is None and vb is None) or vb == pytest.approx(va, rel=1e-7, abs=1e-7), f
+            if b.n_updates > 3:
+                mu = mu @ pi
+            assert b.model_probabilities == pytest.approx(mu.tolist(), abs=1e-12)
+
+
+def test_singer_model_limits() -> None:
+    """Singer model (Van Loan): as tau -> infinity with q = 2 sigma^2 / tau fixed it is the constant-acceleration
+    model driven by white jerk of density q, whose Q has the closed form q [dt^5/20, dt^4/8, dt^3/6; ...; dt]; over
+    a long step the acceleration variance reaches the stationary sigma_a^2 and its transition forgets a."""
+    dt, q = 5.0, 0.01
+    tau = 1e7
+    f, qm = singer_axis(dt, math.sqrt(q * tau / 2.0), tau)
+    white = q * np.array(
+        [[dt**5 / 20, dt**4 / 8, dt**3 / 6], [dt**4 / 8, dt**3 / 3, dt**2 / 2], [dt**3 / 6, dt**2 / 2, dt]]
+    )
+    assert f == pytest.approx(transition(dt)[:3, :3], rel=1e-5, abs=1e-5)
+    assert qm == pytest.approx(white, rel=1e-4)
+    f2, q2 = singer_axis(500.0, 0.2, 20.0)  # acceleration variance from a known start: sigma^2 (1 - e^(-2 dt / tau))
+    assert q2[2, 2] == pytest.approx(0.04 * (1.0 - math.exp(-50.0)), rel=1e-9)
+    assert f2[2, 2] == pytest.approx(math.exp(-25.0), rel=1e-6)
+    f3, q3 = singer_axis(15.0, 0.2, 20.0)  # chained sub-steps = one exponential where both are exact
+    f4, q4 = singer_axis(7.5, 0.2, 20.0)
+    assert f3 == pytest.approx(f4 @ f4, rel=1e-12) and q3 == pytest.approx(f4 @ q4 @ f4.T + q4, rel=1e-9)
+    assert np.linalg.eigvalsh(q2).min() > -1e-9
+
+
+def test_model_probabilities_follow_a_turn() -> None:
+    """A 2 g level turn (60 deg bank, 200 m/s) seen with small noise: the manoeuvre models must take over during the
+    turn (probability of the straight model below 0.5) and hand back after it (above 0.5 at the end)."""
+    from services.attitude.simulation import FlightPlan, Segment
+
+    plan = FlightPlan(
+        (30e3, 4e3, 20e3),
+        200.0,
+        90.0,
+        0.0,
+        (
+            Segment(100.0),
+            Segment(3.0, bank_deg=(0.0, 60.0)),
+            Segment(40.0, bank_deg=(60.0, 60.0)),
+            Segment(3.0, bank_deg=(60.0, 0.0)),
+        ),
+    )
+    times = scan_times(60, 5.0)
+    cfg = AttitudeConfig(radar=None, sigma_r_m=20.0, sigma_az_deg=0.05, sigma_el_deg=0.05)
+    meas = measure(fly(plan, times), cfg.measurement_sigmas(), np.random.default_rng(1))[0].tolist()
+    core = AttitudeCore(cfg)
+    mu = []
+    for k, (r, az, el) in enumerate(meas):
+        out = core.step(
+            RadarPlot(
+                header=Header(stamp_ns=round(times[k] * NS)),
+                site_id="r1",
+                target_id="t",
+                range_m=r,
+                az_deg=az,
+                el_deg=el,
+            )
+        )[0]
+        mu.append(out.model_probabilities[0] if out.model_probabilities else None)
+    in_turn = [m for m, t in zip(mu, times, strict=True) if 115.0 <= t <= 140.0 and m is not None]
+    assert max(in_turn) < 0.5
+    assert mu[-1] is not None and mu[-1] > 0.5
