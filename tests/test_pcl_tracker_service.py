@@ -44,6 +44,8 @@ SEED = 3
 
 
 def make_service(instance: str = "t", **settings: Any) -> PclTrackerService:
+    """A service on the paper's configuration (``preset: paper``: the digest's E1 stream), unless told otherwise."""
+    settings.setdefault("preset", "paper")
     svc = PclTrackerService(PclTrackerSettings(instance=instance, **settings))
     svc._subs = svc.subscriptions()
     return svc
@@ -223,7 +225,7 @@ def test_offline_service_equals_the_core_in_process() -> None:
     svc = make_service()
     out = svc.run_offline([(IN_KEY, s) for s in scans])
     reports = [o.msg for o in out if o.key == OUT_KEY]
-    core = PclTracker(paper_scenario().tracker_config())
+    core = PclTracker(paper_scenario().tracker_config(preset="paper"))
     expected = [r for s in scans for r in core.step(s)]
     assert len(reports) == len(expected) == 51
     for k, (got, exp) in enumerate(zip(reports, expected, strict=True)):
@@ -237,7 +239,7 @@ def test_offline_service_equals_the_core_in_process() -> None:
 def test_reports_are_valid_messages() -> None:
     """Reports are built without pydantic validation: they must equal their validated round trip."""
     scans = simulate(paper_scenario(n_scans=12), np.random.default_rng(1)).scans
-    core = PclTracker(paper_scenario().tracker_config(confirm_M=2, confirm_N=3))
+    core = PclTracker(paper_scenario().tracker_config(preset="paper", confirm_M=2, confirm_N=3))
     for s in scans:
         for rep in core.step(s):
             again = codec.decode(codec.encode(rep), codec.encoding_of(PclScanReport))
@@ -323,7 +325,7 @@ def test_end_marker_flushes_and_starts_a_fresh_tracker_with_new_ids() -> None:
     assert len(second) == 51  # the same scan ids again: a new run, not duplicates
     first_ids = {t.track_id for r in first for t in r.tracks}
     assert min(t.track_id for r in second for t in r.tracks) > max(first_ids)  # ids never reused
-    core = PclTracker(paper_scenario().tracker_config())
+    core = PclTracker(paper_scenario().tracker_config(preset="paper"))
     expected = [r for s in scans for r in core.step(s)]
     assert [[t.state_enu for t in r.tracks] for r in second] == [[t.state_enu for t in r.tracks] for r in expected]
 
