@@ -361,12 +361,20 @@ class PclTracker:
             d2_mix = mahalanobis2(nu, symmetrize(preds.cov[ti] + R_plot[pj]))
             pair_d2.update({p: float(v) for p, v in zip(pairs, d2_mix.tolist(), strict=True)})
 
-        # plot conversions (UT n = 3), done once per plot and reused by update and initiation
+        # the plots that may start tracks (§5.5 step 5: in no gate, convertible); in a clutter burst either none
+        # (suppress) or the max_plots_per_scan strongest by SNR (the digest's alternative, §5.6)
         convertible = ~plots.low_rb
+        init_pool = ~in_some_gate & convertible
+        strongest = suppress_init and trk.burst_initiation == "strongest_snr"
+        if strongest:
+            init_pool = strongest_plots(plots.snr_db, init_pool, lim.max_plots_per_scan)
+            work.flags.append("burst_snr_initiation")
+
+        # plot conversions (UT n = 3), done once per plot and reused by update and initiation
         need = np.zeros(n_valid, dtype=bool)
         for _, c in pairs:
             need[c] = True
-        need |= ~in_some_gate
+        need |= init_pool if strongest else ~in_some_gate
         need &= convertible
         conv_idx = np.flatnonzero(need)
         conv = convert_plots(plots.z[conv_idx, :3], plots.sig[conv_idx, :3], self.tx, trk.transform, work.chol)
@@ -389,15 +397,11 @@ class PclTracker:
 
         # 5. initiation
         n_init = 0
-        if suppress_init:
+        if suppress_init and not strongest:
             cs = self.candidates
             self.candidates = cs.take(np.flatnonzero(sid - cs.scan_id < trk.init_L - 1))
         else:
-            p0 = [
-                j
-                for j in range(n_valid)
-                if not in_some_gate[j] and convertible[j] and j in conv_of and bool(conv.valid[conv_of[j]])
-            ]
+            p0 = [j for j in np.flatnonzero(init_pool).tolist() if j in conv_of and bool(conv.valid[conv_of[j]])]
             n_init = self._initiate(p0, plots, conv, conv_of, sid, t_ns, work)
         self._enforce_capacity(work, sid, t_ns)
 
@@ -904,6 +908,18 @@ class PclTracker:
         self._counts_history = list(snap["counts_history"])
         self.metrics = Counter(snap["metrics"])
         return self
+
+
+def strongest_plots(snr_db: FloatArray, pool: BoolArray, n_max: int) -> BoolArray:
+    """The at most ``n_max`` plots of ``pool`` with the highest SNR (plots without SNR last; ties in plot order)."""
+    idx = np.flatnonzero(pool)
+    if idx.size <= n_max:
+        return pool.copy()
+    snr = np.where(np.isfinite(snr_db[idx]), snr_db[idx], -np.inf)
+    keep = idx[np.argsort(-snr, kind="stable")[:n_max]]
+    out = np.zeros_like(pool)
+    out[keep] = True
+    return out
 
 
 _M = TypeVar("_M", bound=BaseModel)
