@@ -439,7 +439,9 @@ def test_run_metrics_counts_swaps_breaks_and_false_tracks() -> None:
         make_report(4, []),  # break
     ]
     m = run_metrics(reports, truth, [1, 2, 3, 4], ospa_c_m=1000.0, match_distance_m=500.0)
-    assert m["id_swaps"] == 1 and m["breaks"] == 1
+    # track 1 ends and track 2 takes the target over: an ID switch, and a restart (not a swap between targets)
+    assert m["id_switches"] == 1 and m["id_restarts"] == 1 and m["id_swaps"] == 0
+    assert m["assignment_changes"] == 1 and m["breaks"] == 1 and m["fragmentations"] == 0
     assert m["false_confirmed_tracks"] == 1 and m["n_confirmed_tracks"] == 3
     assert m["ospa_m"][0] == pytest.approx(math.sqrt((10.0**2 + 1000.0**2) / 2.0))
     assert m["ospa_m"][3] == 1000.0
