@@ -187,6 +187,9 @@ class LimitsConfig(_Cfg):
     burst_history_scans: int = Field(default=5, ge=1, description="[D] median window for burst detection")
     burst_factor: float = Field(default=10.0, gt=1.0, description="[E] burst if count > factor * median")
     burst_min_plots: int = Field(default=50, ge=1, description="[E] ... and count >= this")
+    min_init_interval_s: float = Field(
+        default=0.5, ge=0.0, description="[E] two plots closer in time never start a track (rates undefined), s"
+    )
     max_tentative_tracks: int = Field(default=2000, ge=1, description="[D]")
     max_confirmed_tracks: int = Field(default=500, ge=1, description="[D]")
     reorder_window_scans: int = Field(default=1, ge=0, description="[D] buffered out-of-order scans")

@@ -612,7 +612,10 @@ class PclTracker:
         trk, lim = self.config.tracker, self.config.limits
         allc = self.candidates
         age = sid - allc.scan_id
-        usable = np.flatnonzero((age >= 1) & (age <= trk.init_L - 1) & (allc.t_ns < t_ns))
+        min_dt_ns = round(lim.min_init_interval_s * 1e9)
+        usable = np.flatnonzero(
+            (age >= 1) & (age <= trk.init_L - 1) & (allc.t_ns <= t_ns - min_dt_ns) & (allc.t_ns < t_ns)
+        )
         cands = allc.take(usable)  # already in (scan_id, plot_id) order
         ci_arr = pj_arr = np.zeros(0, dtype=np.int64)  # (candidate index, index into p0)
         k0 = np.array([conv_of[j] for j in p0], dtype=np.int64)
