@@ -402,7 +402,10 @@ def compose_env(service: str) -> dict[str, str]:
     return {k: str(v) for k, v in spec["environment"].items() if k.startswith("FIXSTREAM_PCL_TRACKER_")}
 
 
-@pytest.mark.parametrize("scenario", ["paper", "clutter", "many", "demo"])
+@pytest.mark.parametrize(
+    "scenario",
+    ["paper", "clutter", "many", "demo", "manoeuvre_05g", "manoeuvre_1g", "manoeuvre_2g", "crossing", "dense_clutter"],
+)
 def test_scenarios_name_the_compose_instances_with_their_configuration(
     scenario: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
