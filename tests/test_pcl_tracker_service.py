@@ -456,3 +456,31 @@ def test_plot_forms_through_the_service_match_the_core() -> None:
         assert [t.track_id for t in ra.tracks] == [t.track_id for t in rb.tracks]
         for ta, tb in zip(ra.tracks, rb.tracks, strict=True):
             np.testing.assert_allclose(ta.state_enu, tb.state_enu, rtol=1e-6, atol=1e-3)
+
+
+def test_preset_paper_from_environment_and_params(monkeypatch: pytest.MonkeyPatch) -> None:
+    """FIXSTREAM_PCL_TRACKER_PRESET=paper and ``preset: paper`` give the digest's configuration; a parameter given
+    explicitly wins over the preset; with no parameter the default is the robust preset."""
+    for k in list(os.environ):
+        if k.startswith("FIXSTREAM_PCL_TRACKER_"):
+            monkeypatch.delenv(k)
+    default = service_mod.from_environment().config.tracker
+    assert (default.preset, default.motion_model, default.confirm_M, default.confirm_N) == ("robust", "imm", 3, 4)
+    assert default.burst_initiation == "strongest_snr" and len(default.imm_q_m2s4) == 4
+    monkeypatch.setenv("FIXSTREAM_PCL_TRACKER_PRESET", "paper")
+    assert service_mod.from_environment().config == PclTrackerConfig.paper()
+    paper = PclTrackerConfig.paper().tracker
+    assert (paper.motion_model, paper.q_accel_var_m2s4, paper.confirm_M, paper.burst_initiation) == (
+        "cv",
+        0.01,
+        0,
+        "suppress",
+    )
+    monkeypatch.setenv("FIXSTREAM_PCL_TRACKER_CONFIRM_M", "2")
+    monkeypatch.setenv("FIXSTREAM_PCL_TRACKER_CONFIRM_N", "3")
+    t = service_mod.from_environment().config.tracker
+    assert (t.motion_model, t.confirm_M, t.confirm_N) == ("cv", 2, 3)
+    p = to_config(PclTrackerParams.model_validate({"preset": "paper", "q_accel_var_m2s4": 1.0}, strict=True))
+    assert (p.tracker.motion_model, p.tracker.q_accel_var_m2s4, p.tracker.confirm_M) == ("cv", 1.0, 0)
+    with pytest.raises(ValueError, match="motion_model imm"):
+        to_config(PclTrackerParams.model_validate({"scheme": "bkf_ukf"}, strict=True))  # IMM has no BKF phase
