@@ -7,7 +7,7 @@ Z up); bistatic quantities are [r_b m, azimuth deg clockwise from north, elevati
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
@@ -15,6 +15,7 @@ from .base import Covariance, Message, StrictModel
 
 TrackStatus = Literal["TENTATIVE", "CONFIRMED", "DROPPED"]
 DropReason = Literal["K_misses", "MN_failed", "reset", "capacity"]
+Probability = Annotated[float, Field(ge=0.0, le=1.0)]
 
 
 class PclTrackReport(StrictModel):
@@ -45,6 +46,12 @@ class PclTrackReport(StrictModel):
         default=None, min_length=2, max_length=2, description="(hits in the M/N window, scans in it) while TENTATIVE"
     )
     filter_phase: Literal["ukf", "bkf"] = Field(default="ukf", description="bkf: in the comparison BKF phase")
+    model_probabilities: list[Probability] | None = Field(
+        default=None,
+        min_length=1,
+        max_length=8,
+        description="IMM model probabilities mu_j in the order of the tracker's imm_q_m2s4 (None: one CV model)",
+    )
     drop_reason: DropReason | None = None
     flags: list[str] = Field(default_factory=list, max_length=16, description="e.g. low_rb_hit, conversion_failed")
 

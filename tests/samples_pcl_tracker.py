@@ -26,6 +26,7 @@ LIVE = PclTrackReport(
     age_scans=10,
     created_scan_id=2,
     updated=True,
+    model_probabilities=[0.91, 0.05, 0.03, 0.01],
 )
 DROPPED = PclTrackReport(
     track_id=4,

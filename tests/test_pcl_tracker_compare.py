@@ -42,7 +42,7 @@ def plots(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def cfg(**kw: object) -> PclTrackerConfig:
-    return paper_scenario().tracker_config(**{"init_cov": "paper_diagonal", **kw})
+    return paper_scenario().tracker_config(preset="paper", **{"init_cov": "paper_diagonal", **kw})
 
 
 @cache

@@ -3,7 +3,8 @@
 * E1 (digest 003 §4.4) through ``fixstream up router recorder player pcl_tracker-rx1-fm`` (the repository's
   compose.yaml, the paper scenario file, rate 0): the scan reports in the MCAP equal, message for message
   (header included), what the service built the same way produces offline from the same scenario events
-  framed by the player's start and end markers; and the run meets E1's criteria.
+  framed by the player's start and end markers; and the run meets E1's criteria with E2's labels (the
+  compose instance runs the default configuration, M/N = 3/4).
 * The bad-input stream of ``test_pcl_tracker_service.py`` published raw over a router into
   ``fixstream run pcl_tracker``: every case is diagnosed with its reason, the process stays up, its status
   counters add up, and the tracks equal the offline run's (which equal the clean stream's).
@@ -62,13 +63,16 @@ def test_e1_through_the_stack_equals_the_offline_service(tmp_path: Path, monkeyp
     assert len(recorded) == 51
     assert recorded == offline[OUT_KEY]  # message for message, header (source, seq, stamp) included
 
-    # digest E1 on this run: one id, created at scan 2 (t = 3 s) CONFIRMED, never dropped, < 250 m at the end
+    # the instance runs the default configuration (M/N = 3/4): digest E1/E2 on this run: one id, created at
+    # scan 2 (t = 3 s), TENTATIVE at scans 2-4, CONFIRMED at scan 5 (third hit) and after, never dropped,
+    # < 250 m at the end
     reports = [m for m in recorded if isinstance(m, PclScanReport)]
     assert len(reports) == 51
     assert {t.track_id for r in reports for t in r.tracks} == {1}
     first = reports[1].tracks[0]
-    assert (first.created_scan_id, first.status, reports[1].t_s) == (2, "CONFIRMED", 3.0)
-    assert all(t.status == "CONFIRMED" for r in reports[1:] for t in r.tracks)
+    assert (first.created_scan_id, first.status, reports[1].t_s) == (2, "TENTATIVE", 3.0)
+    assert [r.tracks[0].status for r in reports[1:5]] == ["TENTATIVE"] * 3 + ["CONFIRMED"]
+    assert all(t.status == "CONFIRMED" for r in reports[4:] for t in r.tracks)
     c = np.deg2rad(256.0)
     truth = np.array([9000.0, 5000.0, 1000.0]) + 150.0 * 200.0 * np.array([np.sin(c), np.cos(c), 0.0])
     assert float(np.linalg.norm(np.array(reports[-1].tracks[0].state_enu[:3]) - truth)) < 250.0
@@ -92,7 +96,7 @@ def test_bad_input_over_a_real_router(router: str) -> None:
     items = dirty_stream(clean_scans())
     expected_reports, expected_diags = run_items(make_service(instance), items)
 
-    with live_service(router, "pcl_tracker", instance, [OUT_KEY]) as live:
+    with live_service(router, "pcl_tracker", instance, [OUT_KEY], FIXSTREAM_PCL_TRACKER_PRESET="paper") as live:
         live.put_raw((IN_KEY, it.payload, it.encoding) for it in items)
         live.wait_status(lambda st: st["counters"]["received"] == len(items), timeout_s=60)
         diag_key = live.diag_key

@@ -69,7 +69,7 @@ def scan_of(k: int, plots: list[BistaticPlot], stamp_ns: int | None = None) -> B
 
 def warm_tracker(n: int = 8, seed: int = 1, cfg: PclTrackerConfig | None = None) -> tuple[PclTracker, list]:
     rng = np.random.default_rng(seed)
-    trk = PclTracker(cfg)
+    trk = PclTracker(cfg or PclTrackerConfig.paper())
     reps = []
     for k in range(1, n + 1):
         reps.extend(trk.step(scan(k, [noisy_z(rng, 3.0 * (k - 1))])))
@@ -117,7 +117,7 @@ def test_bad_sigmas_are_replaced_by_the_defaults_and_flagged() -> None:
 
 
 def test_negative_bistatic_range_is_clamped_near_the_baseline_else_rejected() -> None:
-    trk = PclTracker()
+    trk = PclTracker(PclTrackerConfig.paper())
     z = np.array([0.0, 0.0, 0.01, 0.0])
     rep = trk.step(scan_of(1, [plot("a", z, bistatic_range_m=-500.0), plot("b", z, bistatic_range_m=-700.0)]))[0]
     assert rep.n_plots_flagged.get("near_baseline") == 1 and "near_baseline" in rep.flags
@@ -126,7 +126,7 @@ def test_negative_bistatic_range_is_clamped_near_the_baseline_else_rejected() ->
 
 
 def test_out_of_range_plots_are_rejected() -> None:
-    trk = PclTracker()
+    trk = PclTracker(PclTrackerConfig.paper())
     z = np.array([10_000.0, 0.5, 0.05, 100.0])
     plots = [
         plot("a", z, bistatic_range_m=250_000.0),
@@ -148,7 +148,7 @@ def test_azimuth_is_wrapped_not_rejected_and_range_forms_are_equivalent() -> Non
     lam = 3.06
 
     def run(form: str) -> list[list[float]]:
-        trk = PclTracker()
+        trk = PclTracker(PclTrackerConfig.paper())
         out = []
         for k, z in enumerate(zs, start=1):
             p = plot("a", z)
@@ -179,7 +179,7 @@ def test_doppler_without_wavelength_and_duplicate_plot_ids_are_rejected() -> Non
 
 
 def test_low_rb_plot_is_a_hit_without_update_and_never_initiates() -> None:
-    cfg = PclTrackerConfig().with_limits(rb_min_convertible_m=20_000.0)  # make the paper target "low r_b"
+    cfg = PclTrackerConfig.paper().with_limits(rb_min_convertible_m=20_000.0)  # make the paper target "low r_b"
     rng = np.random.default_rng(5)
     trk = PclTracker(cfg)
     reps = []
@@ -209,9 +209,9 @@ def _scans(n: int, seed: int = 6) -> list[BistaticScan]:
 
 def test_reorder_window_processes_swapped_scans_in_order() -> None:
     scans = _scans(10)
-    ref_trk = PclTracker()
+    ref_trk = PclTracker(PclTrackerConfig.paper())
     ref = [r for s in scans for r in ref_trk.step(s)]
-    trk = PclTracker()
+    trk = PclTracker(PclTrackerConfig.paper())
     order = [0, 1, 2, 4, 3, 5, 7, 6, 8, 9]
     out = []
     sizes = []
@@ -226,7 +226,7 @@ def test_reorder_window_processes_swapped_scans_in_order() -> None:
 
 def test_late_and_duplicate_scans_are_dropped_never_run_backwards() -> None:
     scans = _scans(8)
-    trk = PclTracker()
+    trk = PclTracker(PclTrackerConfig.paper())
     for s in scans[:6]:
         trk.step(s)
     snap = trk.snapshot()
@@ -255,7 +255,7 @@ def test_late_and_duplicate_scans_are_dropped_never_run_backwards() -> None:
 
 def test_non_increasing_time_is_rejected_and_counted_as_a_gap() -> None:
     scans = _scans(8)
-    trk = PclTracker()
+    trk = PclTracker(PclTrackerConfig.paper())
     for s in scans[:5]:
         trk.step(s)
     bad = scans[5].model_copy(update={"header": Header(stamp_ns=scans[4].header.stamp_ns)})
@@ -299,7 +299,7 @@ def test_wrong_pair_is_rejected_and_tx_change_resets() -> None:
 
 
 def test_clutter_burst_suppresses_initiation_but_not_association() -> None:
-    cfg = PclTrackerConfig().with_limits(max_plots_per_scan=20)
+    cfg = PclTrackerConfig.paper().with_limits(max_plots_per_scan=20)
     trk, _ = warm_tracker(cfg=cfg)
     rng = np.random.default_rng(8)
     z = noisy_z(rng, 24.0)
@@ -317,7 +317,7 @@ def test_clutter_burst_suppresses_initiation_but_not_association() -> None:
 
 
 def test_median_based_burst_detection() -> None:
-    cfg = PclTrackerConfig().with_limits(burst_min_plots=30, burst_factor=5.0)
+    cfg = PclTrackerConfig.paper().with_limits(burst_min_plots=30, burst_factor=5.0)
     trk, _ = warm_tracker(cfg=cfg)
     rng = np.random.default_rng(9)
     clutter = np.column_stack(
@@ -328,7 +328,7 @@ def test_median_based_burst_detection() -> None:
 
 
 def test_tentative_capacity_drops_the_weakest() -> None:
-    cfg = PclTrackerConfig().with_tracker(confirm_M=3, confirm_N=4).with_limits(max_tentative_tracks=2)
+    cfg = PclTrackerConfig.paper().with_tracker(confirm_M=3, confirm_N=4).with_limits(max_tentative_tracks=2)
     trk = PclTracker(cfg)
     rng = np.random.default_rng(10)
     base = np.array([20_000.0, 0.3, 0.05, 100.0])
@@ -357,7 +357,7 @@ def test_robust_cholesky_fallbacks() -> None:
 # ------------------------------------------------------------------------------------------------ state & API
 def test_snapshot_restore_continues_identically() -> None:
     scans = _scans(20)
-    a = PclTracker()
+    a = PclTracker(PclTrackerConfig.paper())
     for s in scans[:10]:
         a.step(s)
     b = PclTracker.restore(a.snapshot())
@@ -439,7 +439,9 @@ def test_run_metrics_counts_swaps_breaks_and_false_tracks() -> None:
         make_report(4, []),  # break
     ]
     m = run_metrics(reports, truth, [1, 2, 3, 4], ospa_c_m=1000.0, match_distance_m=500.0)
-    assert m["id_swaps"] == 1 and m["breaks"] == 1
+    # track 1 ends and track 2 takes the target over: an ID switch, and a restart (not a swap between targets)
+    assert m["id_switches"] == 1 and m["id_restarts"] == 1 and m["id_swaps"] == 0
+    assert m["assignment_changes"] == 1 and m["breaks"] == 1 and m["fragmentations"] == 0
     assert m["false_confirmed_tracks"] == 1 and m["n_confirmed_tracks"] == 3
     assert m["ospa_m"][0] == pytest.approx(math.sqrt((10.0**2 + 1000.0**2) / 2.0))
     assert m["ospa_m"][3] == 1000.0

@@ -39,7 +39,9 @@ def rate_bound(p_ref: float, n: int, floor: float) -> float:
 def run_paper(seed: int, confirm_m: int = 0, confirm_n: int = 0, drop: tuple[int, ...] = ()) -> tuple:
     sc = paper_scenario(drop_scans=drop)
     run = simulate(sc, np.random.default_rng(seed))
-    trk = PclTracker(sc.tracker_config(init_cov="full", confirm_M=confirm_m, confirm_N=confirm_n, drop_K=3))
+    trk = PclTracker(
+        sc.tracker_config(preset="paper", init_cov="full", confirm_M=confirm_m, confirm_N=confirm_n, drop_K=3)
+    )
     reps: list[PclScanReport] = [r for s in run.scans for r in trk.step(s)]
     return run, reps
 
@@ -163,7 +165,7 @@ def test_e4_three_missing_plots_drop_and_reinitiate() -> None:
 def run_clutter(seed: int, m: int, n: int) -> tuple[SimRun, list[PclScanReport]]:
     sc = clutter_scenario()
     run = simulate(sc, np.random.default_rng(1000 + seed))
-    trk = PclTracker(sc.tracker_config(confirm_M=m, confirm_N=n, association="gnn"))
+    trk = PclTracker(sc.tracker_config(preset="paper", confirm_M=m, confirm_N=n, association="gnn"))
     return run, [r for s in run.scans for r in trk.step(s)]
 
 
@@ -217,7 +219,7 @@ def test_many_targets_in_clutter() -> None:
     metrics, conv_sq = [], []
     for seed in range(3):
         run = simulate(sc, np.random.default_rng(seed))
-        trk = PclTracker(sc.tracker_config(q_accel_var_m2s4=10.0, confirm_M=3, confirm_N=4))
+        trk = PclTracker(sc.tracker_config(preset="paper", q_accel_var_m2s4=10.0, confirm_M=3, confirm_N=4))
         reps = [r for s in run.scans for r in trk.step(s)]
         metrics.append(run_metrics(reps, run.true_states, [s.scan_id for s in run.scans]))
         for k, s in enumerate(run.scans):

@@ -44,6 +44,8 @@ SEED = 3
 
 
 def make_service(instance: str = "t", **settings: Any) -> PclTrackerService:
+    """A service on the paper's configuration (``preset: paper``: the digest's E1 stream), unless told otherwise."""
+    settings.setdefault("preset", "paper")
     svc = PclTrackerService(PclTrackerSettings(instance=instance, **settings))
     svc._subs = svc.subscriptions()
     return svc
@@ -223,7 +225,7 @@ def test_offline_service_equals_the_core_in_process() -> None:
     svc = make_service()
     out = svc.run_offline([(IN_KEY, s) for s in scans])
     reports = [o.msg for o in out if o.key == OUT_KEY]
-    core = PclTracker(paper_scenario().tracker_config())
+    core = PclTracker(paper_scenario().tracker_config(preset="paper"))
     expected = [r for s in scans for r in core.step(s)]
     assert len(reports) == len(expected) == 51
     for k, (got, exp) in enumerate(zip(reports, expected, strict=True)):
@@ -237,7 +239,7 @@ def test_offline_service_equals_the_core_in_process() -> None:
 def test_reports_are_valid_messages() -> None:
     """Reports are built without pydantic validation: they must equal their validated round trip."""
     scans = simulate(paper_scenario(n_scans=12), np.random.default_rng(1)).scans
-    core = PclTracker(paper_scenario().tracker_config(confirm_M=2, confirm_N=3))
+    core = PclTracker(paper_scenario().tracker_config(preset="paper", confirm_M=2, confirm_N=3))
     for s in scans:
         for rep in core.step(s):
             again = codec.decode(codec.encode(rep), codec.encoding_of(PclScanReport))
@@ -323,7 +325,7 @@ def test_end_marker_flushes_and_starts_a_fresh_tracker_with_new_ids() -> None:
     assert len(second) == 51  # the same scan ids again: a new run, not duplicates
     first_ids = {t.track_id for r in first for t in r.tracks}
     assert min(t.track_id for r in second for t in r.tracks) > max(first_ids)  # ids never reused
-    core = PclTracker(paper_scenario().tracker_config())
+    core = PclTracker(paper_scenario().tracker_config(preset="paper"))
     expected = [r for s in scans for r in core.step(s)]
     assert [[t.state_enu for t in r.tracks] for r in second] == [[t.state_enu for t in r.tracks] for r in expected]
 
@@ -400,7 +402,10 @@ def compose_env(service: str) -> dict[str, str]:
     return {k: str(v) for k, v in spec["environment"].items() if k.startswith("FIXSTREAM_PCL_TRACKER_")}
 
 
-@pytest.mark.parametrize("scenario", ["paper", "clutter", "many", "demo"])
+@pytest.mark.parametrize(
+    "scenario",
+    ["paper", "clutter", "many", "demo", "manoeuvre_05g", "manoeuvre_1g", "manoeuvre_2g", "crossing", "dense_clutter"],
+)
 def test_scenarios_name_the_compose_instances_with_their_configuration(
     scenario: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -451,3 +456,31 @@ def test_plot_forms_through_the_service_match_the_core() -> None:
         assert [t.track_id for t in ra.tracks] == [t.track_id for t in rb.tracks]
         for ta, tb in zip(ra.tracks, rb.tracks, strict=True):
             np.testing.assert_allclose(ta.state_enu, tb.state_enu, rtol=1e-6, atol=1e-3)
+
+
+def test_preset_paper_from_environment_and_params(monkeypatch: pytest.MonkeyPatch) -> None:
+    """FIXSTREAM_PCL_TRACKER_PRESET=paper and ``preset: paper`` give the digest's configuration; a parameter given
+    explicitly wins over the preset; with no parameter the default is the robust preset."""
+    for k in list(os.environ):
+        if k.startswith("FIXSTREAM_PCL_TRACKER_"):
+            monkeypatch.delenv(k)
+    default = service_mod.from_environment().config.tracker
+    assert (default.preset, default.motion_model, default.confirm_M, default.confirm_N) == ("robust", "imm", 3, 4)
+    assert default.burst_initiation == "strongest_snr" and len(default.imm_q_m2s4) == 4
+    monkeypatch.setenv("FIXSTREAM_PCL_TRACKER_PRESET", "paper")
+    assert service_mod.from_environment().config == PclTrackerConfig.paper()
+    paper = PclTrackerConfig.paper().tracker
+    assert (paper.motion_model, paper.q_accel_var_m2s4, paper.confirm_M, paper.burst_initiation) == (
+        "cv",
+        0.01,
+        0,
+        "suppress",
+    )
+    monkeypatch.setenv("FIXSTREAM_PCL_TRACKER_CONFIRM_M", "2")
+    monkeypatch.setenv("FIXSTREAM_PCL_TRACKER_CONFIRM_N", "3")
+    t = service_mod.from_environment().config.tracker
+    assert (t.motion_model, t.confirm_M, t.confirm_N) == ("cv", 2, 3)
+    p = to_config(PclTrackerParams.model_validate({"preset": "paper", "q_accel_var_m2s4": 1.0}, strict=True))
+    assert (p.tracker.motion_model, p.tracker.q_accel_var_m2s4, p.tracker.confirm_M) == ("cv", 1.0, 0)
+    with pytest.raises(ValueError, match="motion_model imm"):
+        to_config(PclTrackerParams.model_validate({"scheme": "bkf_ukf"}, strict=True))  # IMM has no BKF phase

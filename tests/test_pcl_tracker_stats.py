@@ -74,7 +74,7 @@ def plots(n_runs: int) -> tuple[np.ndarray, np.ndarray]:
 @cache
 def loop(n_runs: int, init_cov: str, q: float, gating: bool, bistatic: bool = False) -> LoopResult:
     z, sig = plots(n_runs)
-    cfg = paper_scenario().tracker_config(init_cov=init_cov, q_accel_var_m2s4=q)
+    cfg = paper_scenario().tracker_config(preset="paper", init_cov=init_cov, q_accel_var_m2s4=q)
     return run_single_target(z, sig, TIMES, cfg, gating=gating, bistatic_output=bistatic)
 
 
@@ -330,7 +330,7 @@ def test_s7_bistatic_output_accuracy_full(init_cov: str) -> None:
 
 
 def test_config_defaults_are_the_digest_values() -> None:
-    cfg = PclTrackerConfig()
+    cfg = PclTrackerConfig.paper()
     t = cfg.tracker
     assert (t.q_accel_var_m2s4, t.init_L, t.confirm_M, t.drop_K) == (0.01, 2, 0, 3)
     assert (t.ring_vmin_mps, t.ring_vmax_mps, t.ring_gate_prob, t.assoc_gate_prob) == (30.0, 400.0, 0.99, 0.99)

@@ -251,7 +251,7 @@ def tracks_of(rep) -> dict[int, object]:  # type: ignore[no-untyped-def]
 
 # ------------------------------------------------------------------------------------------------ U9
 def test_u9_coasting_and_drop_after_k_misses() -> None:
-    cfg = PclTrackerConfig().with_tracker(drop_K=3)
+    cfg = PclTrackerConfig.paper().with_tracker(drop_K=3)
     rng = np.random.default_rng(9)
     trk = PclTracker(cfg)
     reps = run_core(trk, [scan(k, [noisy_z(rng, 3.0 * (k - 1))]) for k in range(1, 11)])
@@ -276,7 +276,7 @@ def test_u9_coasting_and_drop_after_k_misses() -> None:
 
 def test_u9_a_hit_after_two_misses_resets_the_counter() -> None:
     rng = np.random.default_rng(19)
-    trk = PclTracker()
+    trk = PclTracker(PclTrackerConfig.paper())
     scans = [scan(k, [noisy_z(rng, 3.0 * (k - 1))]) for k in range(1, 11)]
     scans += [scan(11, []), scan(12, []), scan(13, [noisy_z(rng, 36.0)]), scan(14, []), scan(15, [])]
     reps = run_core(trk, scans)
@@ -288,14 +288,14 @@ def test_u9_a_hit_after_two_misses_resets_the_counter() -> None:
 
 # ------------------------------------------------------------------------------------------------ U10
 def test_u10_m_zero_confirms_at_creation() -> None:
-    trk = PclTracker(PclTrackerConfig().with_tracker(confirm_M=0))
+    trk = PclTracker(PclTrackerConfig.paper().with_tracker(confirm_M=0))
     reps = run_core(trk, [scan(1, [true_z(0.0)]), scan(2, [true_z(3.0)])])
     tr = tracks_of(reps[-1])[1]
     assert tr.status == "CONFIRMED" and tr.created_scan_id == 2 and "initiated" in tr.flags
 
 
 def _mn_run(pattern: list[bool]) -> list:
-    trk = PclTracker(PclTrackerConfig().with_tracker(confirm_M=3, confirm_N=4, drop_K=3))
+    trk = PclTracker(PclTrackerConfig.paper().with_tracker(confirm_M=3, confirm_N=4, drop_K=3))
     scans = [scan(1, [true_z(0.0)]), scan(2, [true_z(3.0)])]
     for i, hit in enumerate(pattern):
         k = 3 + i
@@ -319,7 +319,7 @@ def test_u10_m_of_n_deletes_as_soon_as_m_is_unreachable() -> None:
 
 # ------------------------------------------------------------------------------------------------ U11
 def test_u11_two_of_l_with_l_3_pairs_within_two_scans_only() -> None:
-    cfg = PclTrackerConfig().with_tracker(init_L=3)
+    cfg = PclTrackerConfig.paper().with_tracker(init_L=3)
     trk = PclTracker(cfg)
     reps = run_core(trk, [scan(1, [true_z(0.0)]), scan(2, []), scan(3, [true_z(6.0)])])
     assert [len(r.tracks) for r in reps] == [0, 0, 1]
@@ -335,14 +335,14 @@ def test_u11_two_of_l_with_l_3_pairs_within_two_scans_only() -> None:
     reps = run_core(trk, [scan(1, [true_z(0.0)]), scan(2, []), scan(3, []), scan(4, [true_z(9.0)])])
     assert all(len(r.tracks) == 0 for r in reps)
     # L = 2 (default): one empty scan in between already breaks the pair
-    trk = PclTracker()
+    trk = PclTracker(PclTrackerConfig.paper())
     reps = run_core(trk, [scan(1, [true_z(0.0)]), scan(2, []), scan(3, [true_z(6.0)])])
     assert all(len(r.tracks) == 0 for r in reps)
 
 
 # ------------------------------------------------------------------------------------------------ U12
 def test_u12_a_plot_in_a_track_gate_never_starts_a_track() -> None:
-    trk = PclTracker()
+    trk = PclTracker(PclTrackerConfig.paper())
     rng = np.random.default_rng(12)
     scans = [scan(k, [noisy_z(rng, 3.0 * (k - 1))]) for k in range(1, 6)]
     # from scan 6 on: the true plot and a twin 100 m further in r_b (inside the gate, loses the GNN)

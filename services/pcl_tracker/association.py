@@ -136,6 +136,27 @@ def gate_pairs(z_pred: FloatArray, R_pred: FloatArray, z: FloatArray, R_plot: Fl
     return GatedPairs(ti[srt], pj[srt], d2[srt], np.asarray(logdet, dtype=np.float64)[srt])
 
 
+def gate_pairs_models(
+    z_pred: FloatArray, R_pred: FloatArray, z: FloatArray, R_plot: FloatArray, gamma: float
+) -> GatedPairs:
+    """[E] IMM gating: the union of the models' gates. z_pred (T, r, 4), R_pred (T, r, 4, 4) per model.
+
+    A plot is in a track's gate when it is inside the gate of at least one of its models (a manoeuvre that the
+    low-noise model's gate misses is still caught by the high-noise model's); each pair keeps its least d²
+    over those models, and that model's ln det S.
+    """
+    T, r = z_pred.shape[:2]
+    gp = gate_pairs(z_pred.reshape(T * r, 4), R_pred.reshape(T * r, 4, 4), z, R_plot, gamma)
+    if len(gp) == 0:
+        return gp
+    track = gp.track // r
+    order = np.lexsort((gp.d2, gp.plot, track))
+    track, plot, d2, logdet = track[order], gp.plot[order], gp.d2[order], gp.logdet[order]
+    first = np.ones(track.size, dtype=bool)
+    first[1:] = (track[1:] != track[:-1]) | (plot[1:] != plot[:-1])
+    return GatedPairs(track[first], plot[first], d2[first], logdet[first])
+
+
 def assign_pairs(
     pairs: GatedPairs, cost: FloatArray, rows_allowed: BoolArray, cols_free: BoolArray, method: str = "gnn"
 ) -> list[tuple[int, int]]:

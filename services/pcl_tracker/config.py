@@ -13,6 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy.stats import chi2
 
 from .geometry import baseline
+from .imm import ImmModels
 
 SPEED_OF_LIGHT_MPS = 299_792_458.0
 
@@ -52,14 +53,69 @@ class UTConfig(_Cfg):
     weights: Literal["1/2n"] = Field(default="1/2n", description="[P] equal weights")
 
 
+Preset = Literal["robust", "paper"]
+
+#: what ``preset: paper`` changes from the defaults (= ``preset: robust``), unless the field is given explicitly:
+#: the digest's configuration (§5.1): one CV model with q = 0.01, M = 0, initiation suppressed in clutter bursts
+PAPER_PRESET: dict[str, object] = {
+    "motion_model": "cv",
+    "confirm_M": 0,
+    "confirm_N": 0,
+    "burst_initiation": "suppress",
+}
+
+
 class TrackerConfig(_Cfg):
+    """Tracker parameters. ``preset`` picks the defaults of the fields it controls (:data:`PAPER_PRESET`):
+
+    * ``robust`` (the default) [E]: an IMM over CV models of low and high process noise (manoeuvres up to
+      about 2 g), M/N = 3/4 confirmation (false-track control, digest §4.4 E5), and initiation from the
+      strongest plots by SNR during a clutter burst (digest §5.6's alternative);
+    * ``paper``: the digest's configuration (§5.1): one CV model with q = 0.01, M = 0 (confirmed on
+      creation), no initiation in a clutter burst.
+
+    A field given explicitly always wins over the preset.
+    """
+
+    preset: Preset = Field(default="robust", description="[E] robust (default) or paper: see PAPER_PRESET")
+    motion_model: Literal["cv", "imm"] = Field(
+        default="imm", description="[E] cv: one CV model with q (paper); imm: IMM over CV models imm_q_m2s4"
+    )
     q_accel_var_m2s4: float = Field(default=0.01, ge=0.0, description="[D/S] CV acceleration variance q, m^2/s^4")
+    imm_q_m2s4: tuple[float, ...] = Field(
+        default=(0.001, 1.0, 25.0, 400.0),
+        min_length=1,
+        max_length=8,
+        description="[E] IMM: q of each CV model, m^2/s^4 (straight flight, gentle, ~0.5 g and ~2 g manoeuvres)",
+    )
+    imm_sojourn_s: tuple[float, ...] = Field(
+        default=(1200.0, 120.0, 60.0, 15.0),
+        min_length=1,
+        max_length=8,
+        description="[E] IMM: mean time in each model, s (p_jj = exp(-tau/s_j))",
+    )
+    imm_mu0: tuple[float, ...] = Field(
+        default=(0.7, 0.1, 0.1, 0.1),
+        min_length=1,
+        max_length=8,
+        description="[E] IMM: model probabilities of a new track",
+    )
+    imm_likelihood: Literal["bistatic", "position"] = Field(
+        default="bistatic",
+        description="[E] IMM model likelihoods from the 4-D bistatic plot (uses v_b; the gating prediction is the "
+        "mixture of the models' images) or from the converted position",
+    )
+    burst_initiation: Literal["suppress", "strongest_snr"] = Field(
+        default="strongest_snr",
+        description="[D] in a clutter burst: no initiation (suppress), or initiate from the max_plots_per_scan "
+        "strongest plots by SNR",
+    )
     init_L: int = Field(default=2, ge=2, le=20, description="[P/D] 2/L initiation window, scans")  # noqa: N815 (digest name)
     ring_vmin_mps: float = Field(default=30.0, ge=0.0, description="[D] ring gate V_min, m/s")
     ring_vmax_mps: float = Field(default=400.0, gt=0.0, description="[D] ring gate V_max, m/s")
     ring_gate_prob: float = Field(default=0.99, gt=0.0, lt=1.0, description="[D] P_g, chi2 with 3 dof")
-    confirm_M: int = Field(default=0, ge=0, description="[P/D] M of M/N; 0 = confirmed on creation")  # noqa: N815 (digest name)
-    confirm_N: int = Field(default=0, ge=0, description="[D] N of M/N (window after the 2nd initiating plot)")  # noqa: N815 (digest name)
+    confirm_M: int = Field(default=3, ge=0, description="[P/D] M of M/N; 0 = confirmed on creation")  # noqa: N815 (digest name)
+    confirm_N: int = Field(default=4, ge=0, description="[D] N of M/N (window after the 2nd initiating plot)")  # noqa: N815 (digest name)
     drop_K: int = Field(default=3, ge=1, description="[D] drop after K consecutive misses")  # noqa: N815 (digest name)
     assoc_gate_prob: float = Field(default=0.99, gt=0.0, lt=1.0, description="[D] P_G, chi2 with 4 dof")
     association: Literal["nn", "gnn"] = Field(default="gnn", description="[D] fine association")
@@ -82,11 +138,32 @@ class TrackerConfig(_Cfg):
 
     @model_validator(mode="after")
     def _check(self) -> TrackerConfig:
+        if self.preset == "paper":
+            for name, value in PAPER_PRESET.items():
+                if name not in self.model_fields_set:
+                    object.__setattr__(self, name, value)  # frozen model: set once, while validating
+        if self.motion_model == "imm":
+            r = len(self.imm_q_m2s4)
+            if len(self.imm_sojourn_s) != r or len(self.imm_mu0) != r:
+                raise ValueError("imm_q_m2s4, imm_sojourn_s and imm_mu0 need one value per model")
+            if min(self.imm_q_m2s4) < 0.0 or min(self.imm_sojourn_s) <= 0.0 or min(self.imm_mu0) < 0.0:
+                raise ValueError("imm_q_m2s4 >= 0, imm_sojourn_s > 0 and imm_mu0 >= 0 are required")
+            if abs(sum(self.imm_mu0) - 1.0) > 1e-6:
+                raise ValueError("imm_mu0 must sum to 1")
+            if self.scheme not in ("proposed", "ukf_only") or self.measurement_model != "converted_position":
+                raise ValueError(
+                    "motion_model imm runs with scheme proposed or ukf_only and measurement_model converted_position"
+                )
         if self.ring_vmin_mps >= self.ring_vmax_mps:
             raise ValueError("ring_vmin_mps must be < ring_vmax_mps")
         if self.confirm_M > 0 and self.confirm_N < self.confirm_M:
             raise ValueError("confirm_N must be >= confirm_M when confirm_M > 0")
         return self
+
+    @property
+    def imm_models(self) -> ImmModels:
+        """The IMM model set (q_j, sojourn times, initial probabilities)."""
+        return ImmModels(self.imm_q_m2s4, self.imm_sojourn_s, self.imm_mu0)
 
     @property
     def gamma4(self) -> float:
@@ -110,6 +187,9 @@ class LimitsConfig(_Cfg):
     burst_history_scans: int = Field(default=5, ge=1, description="[D] median window for burst detection")
     burst_factor: float = Field(default=10.0, gt=1.0, description="[E] burst if count > factor * median")
     burst_min_plots: int = Field(default=50, ge=1, description="[E] ... and count >= this")
+    min_init_interval_s: float = Field(
+        default=0.5, ge=0.0, description="[E] two plots closer in time never start a track (rates undefined), s"
+    )
     max_tentative_tracks: int = Field(default=2000, ge=1, description="[D]")
     max_confirmed_tracks: int = Field(default=500, ge=1, description="[D]")
     reorder_window_scans: int = Field(default=1, ge=0, description="[D] buffered out-of-order scans")
@@ -130,9 +210,16 @@ class PclTrackerConfig(_Cfg):
     tracker: TrackerConfig = Field(default_factory=TrackerConfig)
     limits: LimitsConfig = Field(default_factory=LimitsConfig)
 
+    @classmethod
+    def paper(cls, **sections: object) -> PclTrackerConfig:
+        """The digest's configuration (``preset: paper``), other sections as given (e.g. ``geometry=...``)."""
+        return cls.model_validate({**sections, "tracker": TrackerConfig(preset="paper")})
+
     def with_tracker(self, **changes: object) -> PclTrackerConfig:
         """A copy with some tracker fields changed (validated)."""
-        tracker = TrackerConfig.model_validate({**self.tracker.model_dump(), **changes})
+        # only the explicitly set fields are carried over, so a changed preset applies to the others
+        kept = self.tracker.model_dump(include=self.tracker.model_fields_set)
+        tracker = TrackerConfig.model_validate({**kept, **changes})
         return self.model_copy(update={"tracker": tracker})
 
     def with_limits(self, **changes: object) -> PclTrackerConfig:

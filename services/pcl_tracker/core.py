@@ -24,7 +24,7 @@ from schemas.pcl_tracker import PclScanReport, PclTrackReport
 from schemas.radar import BistaticConfigUpdate, BistaticScan
 from shared.errors import InputRejected
 
-from .association import GatedPairs, assign_pairs, gate_pairs
+from .association import GatedPairs, assign_pairs, gate_pairs, gate_pairs_models
 from .config import PclTrackerConfig
 from .filter import (
     ConvertedPlots,
@@ -33,11 +33,14 @@ from .filter import (
     bkf_predict,
     bkf_update,
     convert_plots,
+    innovation,
     kf_position_update,
+    mahalanobis2,
     predict,
     ukf_bistatic_update,
 )
 from .geometry import BoolArray, FloatArray
+from .imm import bistatic_loglik, combine, combine_measurements, imm_position_update, imm_predict
 from .initiation import bistatic_to_cartesian, ring_gate_pairs, two_plot_bistatic_estimate, ukf_only_init
 from .models import plot_covariance
 from .plots import NormalisedPlots, normalise_plots
@@ -49,7 +52,11 @@ _BISTATIC_UNITS = np.array([1.0, _DEG, _DEG, 1.0])
 
 @dataclass
 class TrackState:
-    """Everything kept per track (digest §5.4). ``x``/``P`` are x_a (phase "ukf") or x_b (phase "bkf")."""
+    """Everything kept per track (digest §5.4). ``x``/``P`` are x_a (phase "ukf") or x_b (phase "bkf").
+
+    With the IMM (``motion_model: imm``) ``x``/``P`` are the moment-matched combination of the model-matched
+    estimates ``xm`` (r, 6), ``Pm`` (r, 6, 6) with probabilities ``mu`` (r,) (:mod:`.imm`); else those are None.
+    """
 
     track_id: int
     status: str
@@ -62,6 +69,9 @@ class TrackState:
     misses: int = 0
     mn_hits: int = 0
     mn_scans: int = 0
+    mu: FloatArray | None = None
+    xm: FloatArray | None = None
+    Pm: FloatArray | None = None
 
 
 @dataclass
@@ -102,6 +112,8 @@ class CandidateSet:
 
 
 _CAND_ARRAYS = ("scan_id", "t_ns", "z", "sig", "zc", "Rc")
+#: numpy fields of a TrackState (lists in a snapshot)
+_TRACK_ARRAYS = ("x", "P", "mu", "xm", "Pm")
 _CAND_DIMS = ((4,), (4,), (3,), (3, 3))
 
 
@@ -123,6 +135,8 @@ class _ScanWork:
     #: ... and, per track id, the row whose image is its output (x(k|k) = x(k|k-1) when not updated)
     images: dict[int, int] = field(default_factory=dict)
     chol: CholeskyStats = field(default_factory=CholeskyStats)
+    #: IMM: every model's predicted measurement (n, r, 4) and covariance (n, r, 4, 4), rows as ``pred``
+    model_images: tuple[FloatArray, FloatArray] | None = None
 
 
 class PclTracker:
@@ -180,8 +194,8 @@ class PclTracker:
             raise KeyError(track_id)
         tau = np.array([(stamp_ns - tr.t_ns) * 1e-9])
         work = _ScanWork()
-        ghost = TrackState(**{**tr.__dict__, "x": tr.x.copy(), "P": tr.P.copy()})
-        self._predict_tracks([ghost], tau)
+        ghost = TrackState(**{**tr.__dict__, "x": tr.x.copy(), "P": tr.P.copy()})  # _predict_tracks rebinds arrays
+        self._predict_tracks([ghost], tau)  # (an IMM track's output is the mixture)
         ghost.t_ns = stamp_ns
         scan_id = self.last_scan_id if self.last_scan_id is not None else 0
         return self._track_reports([ghost], scan_id, stamp_ns, work, None)[0]
@@ -310,13 +324,19 @@ class PclTracker:
         # 1. predict every live track and map the prediction to bistatic coordinates
         live = sorted(self.tracks.values(), key=lambda t: (t.status != "CONFIRMED", t.track_id))
         taus = np.array([(t_ns - tr.t_ns) * 1e-9 for tr in live])
-        preds = self._predict_tracks(live, taus, work.chol)
+        preds, model_images = self._predict_tracks(live, taus, work.chol)
         work.pred = preds
+        work.model_images = model_images
         for tr in live:
             tr.t_ns = t_ns
 
         # 2. gating (sparse: only pairs that can be inside the gate are evaluated, exactly)
-        gp = gate_pairs(preds.mean, preds.cov, plots.z, R_plot, self.gamma4) if live and n_valid else GatedPairs.empty()
+        if not (live and n_valid):
+            gp = GatedPairs.empty()
+        elif model_images is not None:  # IMM: the union of the models' gates, least d² over the models
+            gp = gate_pairs_models(*model_images, plots.z, R_plot, self.gamma4)
+        else:
+            gp = gate_pairs(preds.mean, preds.cov, plots.z, R_plot, self.gamma4)
         in_some_gate: BoolArray = np.zeros(n_valid, dtype=bool)
         in_some_gate[gp.plot] = True
         n_in_gate = np.bincount(gp.track, minlength=len(live))
@@ -334,13 +354,27 @@ class PclTracker:
                     pairs.append((r, c))
                     used[c] = True
         pair_d2 = {(int(a), int(b)): float(v) for a, b, v in zip(gp.track, gp.plot, gp.d2, strict=True)}
+        if model_images is not None and pairs:  # IMM: report d² against the track's (mixture) prediction
+            ti = np.array([i for i, _ in pairs], dtype=np.int64)
+            pj = np.array([c for _, c in pairs], dtype=np.int64)
+            nu = innovation(plots.z[pj], preds.mean[ti])
+            d2_mix = mahalanobis2(nu, symmetrize(preds.cov[ti] + R_plot[pj]))
+            pair_d2.update({p: float(v) for p, v in zip(pairs, d2_mix.tolist(), strict=True)})
+
+        # the plots that may start tracks (§5.5 step 5: in no gate, convertible); in a clutter burst either none
+        # (suppress) or the max_plots_per_scan strongest by SNR (the digest's alternative, §5.6)
+        convertible = ~plots.low_rb
+        init_pool = ~in_some_gate & convertible
+        strongest = suppress_init and trk.burst_initiation == "strongest_snr"
+        if strongest:
+            init_pool = strongest_plots(plots.snr_db, init_pool, lim.max_plots_per_scan)
+            work.flags.append("burst_snr_initiation")
 
         # plot conversions (UT n = 3), done once per plot and reused by update and initiation
-        convertible = ~plots.low_rb
         need = np.zeros(n_valid, dtype=bool)
         for _, c in pairs:
             need[c] = True
-        need |= ~in_some_gate
+        need |= init_pool if strongest else ~in_some_gate
         need &= convertible
         conv_idx = np.flatnonzero(need)
         conv = convert_plots(plots.z[conv_idx, :3], plots.sig[conv_idx, :3], self.tx, trk.transform, work.chol)
@@ -363,15 +397,11 @@ class PclTracker:
 
         # 5. initiation
         n_init = 0
-        if suppress_init:
+        if suppress_init and not strongest:
             cs = self.candidates
             self.candidates = cs.take(np.flatnonzero(sid - cs.scan_id < trk.init_L - 1))
         else:
-            p0 = [
-                j
-                for j in range(n_valid)
-                if not in_some_gate[j] and convertible[j] and j in conv_of and bool(conv.valid[conv_of[j]])
-            ]
+            p0 = [j for j in np.flatnonzero(init_pool).tolist() if j in conv_of and bool(conv.valid[conv_of[j]])]
             n_init = self._initiate(p0, plots, conv, conv_of, sid, t_ns, work)
         self._enforce_capacity(work, sid, t_ns)
 
@@ -412,10 +442,15 @@ class PclTracker:
 
     def _predict_tracks(
         self, live: list[TrackState], taus: FloatArray, chol: CholeskyStats | None = None
-    ) -> TransformResult:
-        """Predict every track in place; return the predicted bistatic measurements, row i for live[i]."""
+    ) -> tuple[TransformResult, tuple[FloatArray, FloatArray] | None]:
+        """Predict every track in place; return the predicted bistatic measurements, row i for live[i].
+
+        With the IMM, also every model's predicted measurement (n, r, 4) and covariance (n, r, 4, 4); the
+        track's prediction is then their moment-matched mixture (:func:`.imm.combine_measurements`).
+        """
         trk = self.config.tracker
         n = len(live)
+        model_images: tuple[FloatArray, FloatArray] | None = None
         cross = trk.measurement_model == "bistatic_ukf4"  # only that update uses the cross-covariance
         out = TransformResult(np.zeros((n, 4)), np.zeros((n, 4, 4)), np.zeros((n, 6, 4) if cross else (n, 0, 0)))
         phases = [tr.phase for tr in live]
@@ -425,7 +460,18 @@ class PclTracker:
                 continue
             X = np.stack([live[i].x for i in idx])
             P = np.stack([live[i].P for i in idx])
-            if phase == "ukf":
+            if phase == "ukf" and trk.motion_model == "imm":
+                mu, XM, PM = self._imm_arrays([live[i] for i in idx])
+                c, XM, PM = imm_predict(mu, XM, PM, taus[idx], trk.imm_models)
+                X, P = combine(c, XM, PM)
+                for k, i in enumerate(idx):
+                    live[i].mu, live[i].xm, live[i].Pm = c[k], XM[k], PM[k]  # a miss keeps these
+                r = XM.shape[1]
+                img = bistatic_image(XM.reshape(-1, 6), PM.reshape(-1, 6, 6), self.tx, trk.transform, chol, False)
+                zm, Sm = img.mean.reshape(len(idx), r, 4), img.cov.reshape(len(idx), r, 4, 4)
+                model_images = (zm, Sm)
+                res = TransformResult(*combine_measurements(c, zm, Sm), np.zeros((len(idx), 0, 0)))
+            elif phase == "ukf":
                 X, P = predict(X, P, taus[idx], trk.q_accel_var_m2s4)
                 res = bistatic_image(X, P, self.tx, trk.transform, chol, with_cross=cross)
             else:
@@ -438,7 +484,18 @@ class PclTracker:
             out.mean[idx], out.cov[idx] = res.mean, res.cov
             if cross:
                 out.cross[idx] = res.cross
-        return out
+        return out, model_images
+
+    @staticmethod
+    def _imm_arrays(trs: list[TrackState]) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Stacked (mu, xm, Pm) of IMM tracks."""
+        mu, xm, Pm = [], [], []
+        for t in trs:
+            assert t.mu is not None and t.xm is not None and t.Pm is not None
+            mu.append(t.mu)
+            xm.append(t.xm)
+            Pm.append(t.Pm)
+        return np.stack(mu), np.stack(xm), np.stack(Pm)
 
     def _update_tracks(
         self,
@@ -474,7 +531,18 @@ class PclTracker:
             cc = [c for _, c in ukf_rows]
             X = np.stack([live[i].x for i in ii])
             P = np.stack([live[i].P for i in ii])
-            if trk.measurement_model == "converted_position":
+            if trk.motion_model == "imm":
+                kk = [conv_of[c] for c in cc]
+                mu, XM, PM = self._imm_arrays([live[i] for i in ii])
+                loglik = None
+                if trk.imm_likelihood == "bistatic" and work.model_images is not None:
+                    zm, Sm = work.model_images
+                    loglik = bistatic_loglik(plots.z[cc], zm[ii], Sm[ii], R_plot[cc])
+                mu, XM, PM = imm_position_update(mu, XM, PM, conv.y[kk], conv.R[kk], loglik)
+                X, P = combine(mu, XM, PM)
+                for k, i in enumerate(ii):
+                    live[i].mu, live[i].xm, live[i].Pm = mu[k], XM[k], PM[k]
+            elif trk.measurement_model == "converted_position":
                 kk = [conv_of[c] for c in cc]
                 X, P, _ = kf_position_update(X, P, conv.y[kk], conv.R[kk])
             else:
@@ -544,7 +612,10 @@ class PclTracker:
         trk, lim = self.config.tracker, self.config.limits
         allc = self.candidates
         age = sid - allc.scan_id
-        usable = np.flatnonzero((age >= 1) & (age <= trk.init_L - 1) & (allc.t_ns < t_ns))
+        min_dt_ns = round(lim.min_init_interval_s * 1e9)
+        usable = np.flatnonzero(
+            (age >= 1) & (age <= trk.init_L - 1) & (allc.t_ns <= t_ns - min_dt_ns) & (allc.t_ns < t_ns)
+        )
         cands = allc.take(usable)  # already in (scan_id, plot_id) order
         ci_arr = pj_arr = np.zeros(0, dtype=np.int64)  # (candidate index, index into p0)
         k0 = np.array([conv_of[j] for j in p0], dtype=np.int64)
@@ -581,9 +652,13 @@ class PclTracker:
                     continue
                 tid = self.next_track_id
                 self.next_track_id += 1
-                self.tracks[tid] = TrackState(
-                    track_id=tid, status=status, phase=phase, x=X[k], P=P[k], t_ns=t_ns, created_scan=sid
-                )
+                tr = TrackState(track_id=tid, status=status, phase=phase, x=X[k], P=P[k], t_ns=t_ns, created_scan=sid)
+                if trk.motion_model == "imm" and phase == "ukf":
+                    r = len(trk.imm_q_m2s4)  # every model starts from the two-plot estimate
+                    tr.mu = np.array(trk.imm_mu0, dtype=np.float64)
+                    tr.xm = np.repeat(X[k][None], r, axis=0)
+                    tr.Pm = np.repeat(P[k][None], r, axis=0)
+                self.tracks[tid] = tr
                 n_conf += status == "CONFIRMED"
                 work.created.add(tid)
                 work.assoc[tid] = (plots.ids[j], math.nan)
@@ -709,6 +784,7 @@ class PclTracker:
                         "created_scan_id": tr.created_scan,
                         "confirm_progress": [tr.mn_hits, tr.mn_scans] if tentative else None,
                         "filter_phase": tr.phase,
+                        "model_probabilities": None if tr.mu is None else tr.mu.tolist(),
                         "drop_reason": drop,
                         "flags": flags,
                     },
@@ -769,8 +845,9 @@ class PclTracker:
 
         def tr_dict(t: TrackState) -> dict[str, Any]:
             d = dict(t.__dict__)
-            d["x"] = t.x.tolist()
-            d["P"] = t.P.tolist()
+            for k in _TRACK_ARRAYS:
+                v = getattr(t, k)
+                d[k] = None if v is None else v.tolist()
             return d
 
         c = self.candidates
@@ -809,7 +886,8 @@ class PclTracker:
         self.L_m = float(np.linalg.norm(self.tx))
         self.wavelength_m = snap["wavelength_m"]
         for d in snap["tracks"]:
-            t = TrackState(**{**d, "x": np.array(d["x"]), "P": np.array(d["P"])})
+            arrays = {k: None if d.get(k) is None else np.array(d[k], dtype=np.float64) for k in _TRACK_ARRAYS}
+            t = TrackState(**{**d, **arrays})
             self.tracks[t.track_id] = t
         cd = snap["candidates"]
         if cd:
@@ -833,6 +911,18 @@ class PclTracker:
         self._counts_history = list(snap["counts_history"])
         self.metrics = Counter(snap["metrics"])
         return self
+
+
+def strongest_plots(snr_db: FloatArray, pool: BoolArray, n_max: int) -> BoolArray:
+    """The at most ``n_max`` plots of ``pool`` with the highest SNR (plots without SNR last; ties in plot order)."""
+    idx = np.flatnonzero(pool)
+    if idx.size <= n_max:
+        return pool.copy()
+    snr = np.where(np.isfinite(snr_db[idx]), snr_db[idx], -np.inf)
+    keep = idx[np.argsort(-snr, kind="stable")[:n_max]]
+    out = np.zeros_like(pool)
+    out[keep] = True
+    return out
 
 
 _M = TypeVar("_M", bound=BaseModel)

@@ -27,6 +27,7 @@ from .filter import (
     ukf_bistatic_update,
 )
 from .geometry import BoolArray, FloatArray
+from .imm import bistatic_loglik, combine, combine_measurements, imm_position_update, imm_predict
 from .initiation import bistatic_to_cartesian, two_plot_bistatic_estimate, ukf_only_init
 from .models import plot_covariance
 from .ut import TransformResult
@@ -91,6 +92,12 @@ def run_single_target(
             res = bistatic_to_cartesian(X, P, tx, kind)
             X, P = res.mean, res.cov
     phase_bkf = np.full(R_runs, bkf_phase)
+    imm = trk.motion_model == "imm"
+    if imm:  # every model starts from the two-plot estimate (as the core does)
+        models = trk.imm_models
+        MU = np.broadcast_to(np.array(models.mu0), (R_runs, models.r)).copy()
+        XM = np.repeat(X[:, None], models.r, axis=1)
+        PM = np.repeat(P[:, None], models.r, axis=1)
     live = np.ones(R_runs, dtype=bool)
     misses = np.zeros(R_runs, dtype=np.int64)
     hits_after = np.zeros(R_runs, dtype=np.int64)
@@ -115,7 +122,13 @@ def run_single_target(
         u = np.flatnonzero(live & ~phase_bkf)
         b = np.flatnonzero(live & phase_bkf)
         pred_u: TransformResult | None = None
-        if u.size:
+        if u.size and imm:
+            MU[u], XM[u], PM[u] = imm_predict(MU[u], XM[u], PM[u], tau[u], models)
+            X[u], P[u] = combine(MU[u], XM[u], PM[u])
+            ZM = bistatic_image(XM[u].reshape(-1, 6), PM[u].reshape(-1, 6, 6), tx, kind)
+            zm, Sm = ZM.mean.reshape(u.size, models.r, 4), ZM.cov.reshape(u.size, models.r, 4, 4)
+            pred_u = TransformResult(*combine_measurements(MU[u], zm, Sm), np.zeros((u.size, 0, 0)))
+        elif u.size:
             X[u], P[u] = predict(X[u], P[u], tau[u], trk.q_accel_var_m2s4)
             pred_u = bistatic_image(X[u], P[u], tx, kind)
         if b.size:
@@ -127,13 +140,28 @@ def run_single_target(
             nu = innovation(z[idx, k], pred.mean)
             d2 = mahalanobis2(nu, pred.cov + R_plot[idx])
             nis[idx, k] = d2
-            if gating:
+            if gating and imm and pred is pred_u:
+                # the core's IMM gate: the union of the models' gates
+                nu_m = innovation(z[idx, k][:, None, :], zm)
+                in_gate[idx, k] = (mahalanobis2(nu_m, Sm + R_plot[idx][:, None]) <= gamma4).any(axis=1)
+            elif gating:
                 in_gate[idx, k] = d2 <= gamma4
         # update runs whose plot is in the gate
         uu = u[in_gate[u, k]] if u.size else u
         if uu.size and pred_u is not None:
             pos = np.searchsorted(u, uu)
-            if trk.measurement_model == "converted_position":
+            if imm:
+                conv = convert_plots(z[uu, k, :3], sigs[uu, :3], tx, kind)
+                ok = conv.valid & (z[uu, k, 0] >= cfg.limits.rb_min_convertible_m)
+                w = uu[ok]
+                if w.size:
+                    ll = None
+                    if trk.imm_likelihood == "bistatic":
+                        pw = pos[ok]
+                        ll = bistatic_loglik(z[w, k], zm[pw], Sm[pw], R_plot[w])
+                    MU[w], XM[w], PM[w] = imm_position_update(MU[w], XM[w], PM[w], conv.y[ok], conv.R[ok], ll)
+                    X[w], P[w] = combine(MU[w], XM[w], PM[w])
+            elif trk.measurement_model == "converted_position":
                 conv = convert_plots(z[uu, k, :3], sigs[uu, :3], tx, kind)
                 ok = conv.valid & (z[uu, k, 0] >= cfg.limits.rb_min_convertible_m)
                 X_new, P_new, _ = kf_position_update(X[uu], P[uu], conv.y, conv.R)

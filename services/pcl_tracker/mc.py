@@ -8,7 +8,9 @@ at the end, and scores the scan reports against the truth (``fixstream/truth/<ta
 * position and velocity errors of the confirmed track matched to each target, per scan (RMSE over time in
   the aggregate);
 * OSPA distance per scan between confirmed tracks and live targets (cut-off ``ospa_c_m``, order ``ospa_p``);
-* track continuity: id swaps and breaks of the target-to-track matching, distinct ids per target;
+* identity (CLEAR MOT track-to-truth association over time): ID switches, split into swaps between targets
+  and restarts, fragmentations, breaks, distinct ids per target; GOSPA per scan with its decomposition
+  (localisation, missed targets, false tracks); NEES of the matched tracks and NIS of their plots per scan;
 * false confirmed tracks: confirmed ids never within ``match_distance_m`` of a target while confirmed.
 
 ``params`` are the tracker's parameters (the same names as the service's ``FIXSTREAM_PCL_TRACKER_*``
@@ -147,7 +149,10 @@ def aggregate(per_run: list[dict[str, Any]]) -> dict[str, Any]:
         "pos_rmse_m_last": pos[-1] if pos else None,
         "vel_rmse_mps_last": vel[-1] if vel else None,
         "tracks_created_per_run": float(np.mean([r["n_tracks_created"] for r in per_run])),
+        "id_switches_total": int(sum(r["id_switches"] for r in per_run)),
         "id_swaps_total": int(sum(r["id_swaps"] for r in per_run)),
+        "id_restarts_total": int(sum(r["id_restarts"] for r in per_run)),
+        "fragmentations_total": int(sum(r["fragmentations"] for r in per_run)),
         "breaks_total": int(sum(r["breaks"] for r in per_run)),
         "false_confirmed_tracks_total": int(sum(r["false_confirmed_tracks"] for r in per_run)),
         "refused_inputs": dict(sum((Counter(r["refused_inputs"]) for r in per_run), Counter())),

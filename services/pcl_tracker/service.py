@@ -21,9 +21,10 @@ Bad input (digest §5.6, architecture rule 5) never stops the service and never 
   (``rb_below_baseline``, ``duplicate_plot_id``, ``no_wavelength``, ...), and the report counts them in
   ``n_plots_in`` / ``n_plots_rejected``;
 * plots kept but unusual (``low_rb``, ``near_baseline``, ``sigma_defaulted``) and scan conditions
-  (``clutter_burst``, ``gap_coast``, ``gap_reset``, ``capacity``, ``config_reset``,
-  ``time_not_monotonic`` of a buffered scan, ``out_of_order`` of a scan buffered for reordering,
-  ``conversion_failed``, ``cholesky_fallback``) are reported as diagnostics too, level ``info`` or ``warning``.
+  (``clutter_burst``, whose detail says whether initiation kept the strongest plots by SNR, ``gap_coast``,
+  ``gap_reset``, ``capacity``, ``config_reset``, ``time_not_monotonic`` of a buffered scan, ``out_of_order``
+  of a scan buffered for reordering, ``conversion_failed``, ``cholesky_fallback``) are reported as diagnostics
+  too, level ``info`` or ``warning``.
 
 Deterministic: outputs depend only on the order of the inputs on the input key (time comes from the
 stamps). The end of a player run flushes the reorder buffer and then starts a fresh tracker for the next
@@ -61,7 +62,7 @@ log = logging.getLogger("fixstream.pcl_tracker")
 #: plot-level reasons (count per plot): a plot refused or flagged inside an accepted scan
 _PLOT_FLAGS_INFO = {"low_rb", "near_baseline", "sigma_defaulted"}
 #: scan flags already reported another way (a rejected message, or a plot flag)
-_FLAGS_REPORTED_ELSEWHERE = {"late_scan_dropped", "sigma_defaulted", "near_baseline"}
+_FLAGS_REPORTED_ELSEWHERE = {"late_scan_dropped", "sigma_defaulted", "near_baseline", "burst_snr_initiation"}
 _FLAGS_INFO = {"gap_coast"}
 
 
@@ -302,6 +303,8 @@ class PclTrackerService(Service):
             detail = f"scan {sid}: {flag}"
             if flag == "gap_coast":
                 detail += f" ({rep.gap_scans} missing scan(s) counted as misses)"
+            elif flag == "clutter_burst" and "burst_snr_initiation" in rep.flags:
+                detail += f" ({rep.n_plots_in} plots: initiation from the strongest plots by SNR only)"
             elif flag == "clutter_burst":
                 detail += f" ({rep.n_plots_in} plots: association only, no initiation)"
             self._event(key, flag, detail, stamp, "info" if flag in _FLAGS_INFO else "warning")

@@ -40,7 +40,7 @@ SECTIONS: dict[str, type[BaseModel]] = {
 #: nested fields that are not parameters (the UT scheme has a single allowed value)
 _NOT_FLAT = {"ut"}
 #: tuple fields become lists (YAML and JSON give lists; strict validation refuses a list for a tuple)
-_VEC3 = {"tx_position_enu_m"}
+_TUPLES = {"tx_position_enu_m", "imm_q_m2s4", "imm_sojourn_s", "imm_mu0"}
 
 
 def flat_fields() -> dict[str, tuple[Any, FieldInfo]]:
@@ -52,13 +52,23 @@ def flat_fields() -> dict[str, tuple[Any, FieldInfo]]:
                 continue
             if name in out:
                 raise RuntimeError(f"parameter {name!r} of {section} is defined twice")
-            if name in _VEC3:
-                default = list(cast(tuple[float, float, float], info.default))
-                vec = cast(FieldInfo, Field(default=default, min_length=3, max_length=3, description=info.description))
+            if name in _TUPLES:
+                default = list(cast(tuple[float, ...], info.default))
+                lo, hi = _length_bounds(info, len(default))
+                vec = cast(
+                    FieldInfo, Field(default=default, min_length=lo, max_length=hi, description=info.description)
+                )
                 out[name] = (list[float], vec)
             else:
                 out[name] = (info.annotation, copy.deepcopy(info))
     return out
+
+
+def _length_bounds(info: FieldInfo, n_default: int) -> tuple[int, int]:
+    """(min_length, max_length) of a tuple field: its declared bounds, else exactly its default's length."""
+    lo = next((int(m.min_length) for m in info.metadata if hasattr(m, "min_length")), n_default)
+    hi = next((int(m.max_length) for m in info.metadata if hasattr(m, "max_length")), n_default)
+    return lo, hi
 
 
 def section_of(name: str) -> str:
@@ -69,12 +79,18 @@ def section_of(name: str) -> str:
 
 
 def to_config(flat: BaseModel) -> PclTrackerConfig:
-    """The core configuration from a flat parameter model (settings or params)."""
+    """The core configuration from a flat parameter model (settings or params).
+
+    Only the parameters given explicitly (environment, file or ``params``) are passed on, so the ones left out
+    take the defaults of the chosen ``preset``.
+    """
     values = flat.model_dump()
     nested: dict[str, dict[str, Any]] = {section: {} for section in SECTIONS}
     for name in flat_fields():
+        if name not in flat.model_fields_set:
+            continue
         value = values[name]
-        nested[section_of(name)][name] = tuple(value) if name in _VEC3 else value
+        nested[section_of(name)][name] = tuple(value) if name in _TUPLES else value
     return PclTrackerConfig.model_validate(nested)
 
 

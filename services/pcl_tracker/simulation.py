@@ -86,6 +86,31 @@ class ClutterSpec:
 
 
 @dataclass(frozen=True)
+class SnrSpec:
+    """Signal-to-noise ratio of the plots [E].
+
+    ``fixed`` (the default): 20 dB for target plots, 13 dB for clutter. ``swerling1``: a square-law detector
+    with threshold ``threshold_db`` (noise power 1); a plot's power is signal + noise, exponential with mean
+    1 + SNR (Swerling 1 fluctuation), and reported plots are those above the threshold. Exponentials are
+    memoryless, so the reported power is the threshold plus an exponential excess of the same mean:
+
+        snr_db = 10 log10(T + E),  T = 10^(threshold_db/10),  E ~ Exp(1 + 10^(mean_db/10)),
+
+    with ``mean_db`` = ``target_mean_db`` for target echoes and ``clutter_mean_db`` for clutter plots
+    (clutter echoes of that mean clutter-to-noise ratio; -inf dB would be thermal-noise false alarms).
+    """
+
+    model: Literal["fixed", "swerling1"] = "fixed"
+    threshold_db: float = 13.0
+    target_mean_db: float = 20.0
+    clutter_mean_db: float = 10.0
+
+    def draw(self, rng: np.random.Generator, mean_db: float, n: int) -> FloatArray:
+        excess = rng.exponential(1.0 + 10.0 ** (mean_db / 10.0), n)
+        return np.asarray(10.0 * np.log10(10.0 ** (self.threshold_db / 10.0) + excess), dtype=np.float64)
+
+
+@dataclass(frozen=True)
 class PclScenario:
     """A simulated receiver–illuminator pair, its targets, detection, clutter and noise."""
 
@@ -106,6 +131,7 @@ class PclScenario:
     wavelength_m: float = 3.06
     doppler_sign: int = -1
     drop_scans: tuple[int, ...] = ()  # 1-based scan numbers whose target plots are removed (E3, E4)
+    snr: SnrSpec = field(default_factory=SnrSpec)
 
     def times_s(self) -> FloatArray:
         """Scan times on the scenario clock (s): t0 + k * period (the targets' times are on this clock too)."""
@@ -250,7 +276,8 @@ def simulate(sc: PclScenario, rng: np.random.Generator, *, frame_id: str = "pcl_
             if not detected or (k + 1) in sc.drop_scans:
                 continue
             z = true_bistatic(s, sc.tx_position_enu_m) + noise
-            zs.append((z, i, 20.0))
+            snr_t = float(sc.snr.draw(rng, sc.snr.target_mean_db, 1)[0]) if sc.snr.model == "swerling1" else 20.0
+            zs.append((z, i, snr_t))
         n_cl = int(rng.poisson(cl.rate_per_scan)) if cl.rate_per_scan > 0 else 0
         if n_cl:
             u = rng.random((n_cl, 4))
@@ -270,8 +297,9 @@ def simulate(sc: PclScenario, rng: np.random.Generator, *, frame_id: str = "pcl_
                     cl.vb_range_mps[1],
                 ]
             )
-            for row in lo + u * (hi - lo):
-                zs.append((row, -1, 13.0))
+            snr_c = sc.snr.draw(rng, sc.snr.clutter_mean_db, n_cl) if sc.snr.model == "swerling1" else None
+            for m, row in enumerate(lo + u * (hi - lo)):
+                zs.append((row, -1, 13.0 if snr_c is None else float(snr_c[m])))
         order = rng.permutation(len(zs))
         plots: list[BistaticPlot] = []
         origin: dict[str, int] = {}

@@ -32,6 +32,7 @@ from .simulation import (
     PAPER_TX_M,
     ClutterSpec,
     PclScenario,
+    SnrSpec,
     TargetSpec,
     many_target_scenario,
     simulate,
@@ -142,6 +143,18 @@ class SigmaParams(SimParams):
     vb_mps: float = Field(default=PAPER_SIGMA[3], ge=0.0, le=1e3, description="bistatic velocity, m/s")
 
 
+class SnrParams(SimParams):
+    """SNR of the plots (``simulation.SnrSpec``): fixed 20 / 13 dB, or Swerling-1 above a detection threshold."""
+
+    model: Literal["fixed", "swerling1"] = Field(default="fixed", description="fixed: targets 20 dB, clutter 13 dB")
+    threshold_db: float = Field(default=13.0, ge=-50.0, le=100.0, description="detection threshold, dB")
+    target_mean_db: float = Field(default=20.0, ge=-50.0, le=100.0, description="mean SNR of target echoes, dB")
+    clutter_mean_db: float = Field(default=10.0, ge=-50.0, le=100.0, description="mean clutter-to-noise, dB")
+
+    def spec(self) -> SnrSpec:
+        return SnrSpec(self.model, self.threshold_db, self.target_mean_db, self.clutter_mean_db)
+
+
 class PclSimParams(SimParams):
     """Parameters of the ``pcl_tracker`` simulator (see the module doc and docs/pcl_tracker.md)."""
 
@@ -170,6 +183,7 @@ class PclSimParams(SimParams):
         default_factory=list, max_length=100_000, description="scan ids (1-based) whose target plots are removed"
     )
     publish_truth: bool = Field(default=True, description="publish and register the targets' truth")
+    snr: SnrParams = Field(default_factory=SnrParams)
 
     @model_validator(mode="after")
     def _check(self) -> PclSimParams:
@@ -263,6 +277,7 @@ class PclSimulator:
             wavelength_m=params.wavelength_m,
             doppler_sign=params.doppler_sign,
             drop_scans=tuple(params.drop_scans),
+            snr=params.snr.spec(),
         )
         if params.publish_truth:
             for spec in specs:
