@@ -3,7 +3,7 @@
 Every scenario file of the manoeuvring family (``scenarios/attitude_turns_light.yaml``,
 ``attitude_turns_transport.yaml``, ``attitude_climbs.yaml``, ``attitude_agile.yaml``: 24 flights) and the
 paper's straight flight (``attitude_9s15.yaml``) is run through ``fixstream mc``'s code path
-(:func:`shared.montecarlo.run_montecarlo`: the player's events, one core per run, the plugin's metrics) with
+(:func:`tools.montecarlo.run_montecarlo`: the player's events, one core per run, the plugin's metrics) with
 each preset, and the flight-phase statistics (:func:`services.attitude.metrics.phase_table`) are printed per
 preset and phase, pooled over the family and per file: RMS error of heading, pitch, roll (earth frame) and of
 the three LOS angles; the state NEES (mean ANEES, the share of scans whose ANEES lies in its chi2(9N) 95 % band,
@@ -25,7 +25,7 @@ from typing import Any
 from services.attitude.flights import FILES
 from services.attitude.metrics import phase_table
 from services.player.scenario import load_scenario
-from shared.montecarlo import run_montecarlo
+from tools.montecarlo import run_montecarlo
 
 from .report import emit
 

@@ -19,7 +19,7 @@ from services.attitude.evaluation import evaluation_config, run_monte_carlo
 from services.attitude.flights import FILES
 from services.attitude.metrics import phase_table
 from services.player.scenario import load_scenario
-from shared.montecarlo import run_montecarlo
+from tools.montecarlo import run_montecarlo
 
 SCENARIOS = REPO / "scenarios"
 
