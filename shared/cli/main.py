@@ -20,6 +20,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("shared.cli.run", "run a service by name (recorder, lbl_nav, ...)"),
     "play": ("shared.cli.play", "play a scenario YAML or replay an MCAP recording onto Zenoh"),
     "record": ("shared.cli.record", "record Zenoh streams to MCAP"),
+    "info": ("shared.cli.info", "what a recording holds (like ros2 bag info); --recover finalises a killed one"),
     "echo": ("shared.cli.echo", "print decoded messages on a key expression"),
     "status": ("shared.cli.status", "query every service's status"),
     "scenarios": ("shared.cli.scenarios", "list, show and validate scenario files"),
