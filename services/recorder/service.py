@@ -19,8 +19,9 @@ apart. An in-order message costs one dict look-up; the tracker sees only the exc
 **Throughput.** Samples reach the recorder through a Zenoh FIFO handler (``queue_size`` samples): no Python callback
 per sample; one thread drains it in batches, validates and hands JSON to the Rust MCAP writer. When the FIFO is full
 Zenoh holds the delivery (a blocking publisher slows down, a dropping one loses at the router, which the seq check
-counts); the recorder never queues without bound, so it keeps answering its status queryable and stops within a
-FIFO's worth of work after SIGTERM.
+counts); the recorder never queues without bound, and stops within a FIFO's worth of work after SIGTERM. Its status
+queryable and liveliness token live on a second session, whose link the data's back-pressure never holds, so it
+answers at once however far behind the data is.
 
 **Crash bound.** In memory at any time: the FIFO (≤ ``queue_size`` samples) and the open chunk (≤
 ``chunk_flush_s`` of wall time, checked after every batch, and ≤ ``chunk_size_bytes``). A SIGKILL loses at most
@@ -116,6 +117,9 @@ class RecorderService(Service):
         self._next_diag = 0.0
         self._status_thread: threading.Thread | None = None
         self._status_replies: list[dict[str, Any]] | None = None
+        #: services whose status answered the last start marker's query (their configuration is in the file)
+        self.services_seen = 0
+        self._control: zenoh.Session | None = None
         #: the Foxglove scene and map channels (FIXSTREAM_RECORDER_FOXGLOVE), converted from what is written
         self.foxglove: FoxgloveChannels | None = None
         if settings.foxglove:
@@ -155,6 +159,7 @@ class RecorderService(Service):
             "fifo": {"capacity": self.config.queue_size, "peak_backlog": self.fifo_peak},
             "data_clock_ns": self.data_clock_ns,
             "runs": dict(self.runs),
+            "services_seen": self.services_seen,
             "foxglove_written": self.foxglove.written if self.foxglove is not None else None,
             "foxglove_errors": dict(self.foxglove.errors) if self.foxglove is not None else None,
         }
@@ -171,8 +176,11 @@ class RecorderService(Service):
             if not zenoh.KeyExpr(self.config.key_expr).intersects(zenoh.KeyExpr(_SCENARIO_KEYS)):
                 # markers are not recorded then, but they still name the run in the metadata
                 subs.append(self.session.declare_subscriber(_SCENARIO_KEYS, zenoh.handlers.FifoChannel(64)))
-            declared.append(self.session.declare_queryable(keys.status(self.name, self.instance), self._answer_status))
-            declared.append(self.session.liveliness().declare_token(keys.alive(self.name, self.instance)))
+            # status and liveliness on a session of their own: its link is never held by the data FIFO's
+            # back-pressure, so the recorder answers at once however far behind its data is
+            self._control = control = open_session(self.zenoh_settings)
+            declared.append(control.declare_queryable(keys.status(self.name, self.instance), self._answer_status))
+            declared.append(control.liveliness().declare_token(keys.alive(self.name, self.instance)))
             log.info("%s: up, recording %s to %s", self.source, self.config.key_expr, self.writer.out_dir)
             self._serve(subs)
         finally:
@@ -238,8 +246,10 @@ class RecorderService(Service):
             for pub in self._publishers.values():
                 with contextlib.suppress(Exception):
                     pub.undeclare()
-            if self.session is not None:
-                self.session.close()
+            for session in (self._control, self.session):
+                if session is not None:
+                    with contextlib.suppress(Exception):
+                        session.close()
             log.info("%s: stopped", self.source)
 
     def _housekeeping(self, final: bool = False) -> None:
@@ -252,6 +262,7 @@ class RecorderService(Service):
             self._write_failed(self.config.key_expr, self.writer.failed)
         if self._status_replies is not None:
             replies, self._status_replies = self._status_replies, None
+            self.services_seen = len(replies)
             self.writer.put_metadata("fixstream.services", services_metadata(replies))
         now = time.monotonic()
         if final or now >= self._next_diag:
@@ -382,7 +393,7 @@ class RecorderService(Service):
 
     def _ask_services(self) -> None:
         """Query every service's status in the background; the loop writes the answers as metadata."""
-        session = self.session
+        session = self._control or self.session  # the control link: replies are not held behind data
         if session is None or (self._status_thread is not None and self._status_thread.is_alive()):
             return
 
