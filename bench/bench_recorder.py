@@ -94,8 +94,9 @@ def cb(sample):
 sub = s.declare_subscriber(sys.argv[3], cb)
 print("ready", flush=True)
 stop = threading.Event()
+interval = float(sys.argv[4]) if len(sys.argv) > 4 else 0.5
 def report():
-    while not stop.wait(0.5):
+    while not stop.wait(interval):
         print(json.dumps({"t": time.monotonic(), "n": n[0]}), flush=True)
 threading.Thread(target=report, daemon=True).start()
 sys.stdin.readline()

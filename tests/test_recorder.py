@@ -4,16 +4,18 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
 import time
 from collections import Counter
 from pathlib import Path
 
 import msgpack
 import pytest
-from conftest import wait_until
+from conftest import REPO, fixstream_cmd, wait_until
 from mcap.reader import make_reader
 from recorder_support import by_topic, examples, recorder, records_of, restamp
 from samples import EXAMPLES
+from test_player_zenoh import Collector
 
 from schemas import Diagnostic, Message
 from shared import codec, keys
@@ -223,3 +225,27 @@ def test_malformed_flood_is_recorded_raw_counted_and_survived(router: str, tmp_p
     rejected = [decode_rejected(r) for r in records if is_rejected(r)]
     assert [(x.payload, x.encoding, x.reason) for x in rejected] == sent_bad
     assert all(x.key == bad_key and x.detail for x in rejected)
+
+    # a replay puts the same bytes back on the original keys, in the recorded order
+    (path,) = recording_files(rec.out_dir)
+    recorded = [
+        (x.key, x.payload, x.encoding)
+        if is_rejected(r) and (x := decode_rejected(r))
+        else (r.topic, codec.encode(decode_record(r)), codec.encoding_of(type(decode_record(r))))
+        for r in records
+    ]
+    collector = Collector(router)
+    try:
+        done = subprocess.run(
+            fixstream_cmd("play", str(path), "--rate", "0", "--connect", router, "--linger", "0.3"),
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert done.returncode == 0, done.stderr
+        assert wait_until(lambda: len(collector.samples) >= len(recorded), timeout=20)
+        replayed = [(k, p, e) for k, p, e, _ in collector.samples if k.startswith("fixstream/sensor/")]
+    finally:
+        collector.close()
+    assert replayed == recorded
