@@ -15,7 +15,7 @@ from schemas import Message
 from schemas.export import json_schema
 from services.recorder.settings import RecorderSettings
 from services.recorder.writer import RotatingMcapWriter
-from shared.mcap_io import MAGIC, decode_record, iter_records, recording_files
+from shared.mcap_io import MAGIC, Rejected, decode_record, decode_rejected, iter_records, recording_files
 
 
 class FakeClock:
@@ -146,3 +146,34 @@ def test_settings_from_environment(monkeypatch: pytest.MonkeyPatch, tmp_path: Pa
     monkeypatch.setenv("FIXSTREAM_RECORDER_COMPRESSION", "bzip2")
     with pytest.raises(ValidationError, match="compression"):
         RecorderSettings.load()
+
+
+def test_time_fields_rejected_channel_metadata_and_attachments_in_every_file(tmp_path: Path) -> None:
+    """log_time = publish_time = header.stamp_ns whatever the receive time; a rejected payload keeps its bytes and
+    encoding; metadata and attachments are in each file of a rotation (read back with the official reader)."""
+    clock = FakeClock()
+    w = RotatingMcapWriter(tmp_path, rotate_duration_s=10.0, clock=clock, metadata={"who": "test"})
+    w.put_attachment("scenario/s.yaml", "application/yaml", b"name: s\n", 0)
+    depth = EXAMPLES["Depth"]
+    bad = Rejected("fixstream/sensor/a/depth/d", "application/msgpack;fixstream.Depth/1", "non_finite", "NaN", b"\xc1x")
+    w.write("fixstream/sensor/a/depth/d", stamped(depth, 0), rx_time_ns=999_999)
+    w.write_rejected(bad, stamp_ns=11)
+    w.put_metadata("fixstream.run", {"scenario": "s"})
+    clock.t += 10.0  # rotation by duration at the next write
+    w.write("fixstream/sensor/a/depth/d", stamped(depth, 1), rx_time_ns=5)
+    w.finish()
+    files = recording_files(tmp_path)
+    assert len(files) == 2
+    for path in files:
+        with path.open("rb") as f:
+            reader = make_reader(f)
+            assert {m.name: m.metadata for m in reader.iter_metadata()} == {
+                "fixstream.recorder": {"who": "test"},
+                "fixstream.run": {"scenario": "s"},
+            }
+            assert [(a.name, a.data) for a in reader.iter_attachments()] == [("scenario/s.yaml", b"name: s\n")]
+    first = list(iter_records(files[0]))
+    assert [(r.log_time_ns, r.publish_time_ns) for r in first] == [(10, 10), (11, 11)]  # stamps, not receive times
+    assert decode_rejected(first[1]) == Rejected(bad.key, bad.encoding, bad.reason, bad.detail, bad.payload, 0)
+    assert first[1].topic == "fixstream/rejected/fixstream/sensor/a/depth/d"
+    assert [r.log_time_ns for r in iter_records(files[1])] == [11]

@@ -1,6 +1,6 @@
 """The recorder's MCAP output: one file at a time, chunked, compressed, rotated, crash-safe, written by the Rust
-MCAP writer inside ``foxglove-sdk`` (``foxglove.open_mcap``; 0.7–1.2 µs of CPU per small message against 8–10 µs for
-the pure-Python ``mcap`` writer, docs/recorder.md).
+MCAP writer inside ``foxglove-sdk`` (``foxglove.open_mcap``): 0.5–0.7 µs of CPU per 90-byte JSON message against
+3.5–3.9 µs for the pure-Python ``mcap`` writer, zstd, measured in one run (docs/recorder.md).
 
 Layout of every file (what Foxglove, ``@mcap/core`` and :mod:`shared.mcap_io` read):
 
