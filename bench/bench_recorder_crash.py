@@ -8,7 +8,8 @@ issue 14). After ``BENCH_CRASH_KILL_AT_S`` seconds the recorder is killed with S
 
 Figures per kill: what the witness had received at the kill, what the file holds, the loss as a count and as a
 share of what was received, whether the file is a gap-free prefix per publisher, the data age of the newest message
-in the file (the kill time minus its stamp: publishers stamp their messages on their own wall clock from the start),
+in the file (the kill time minus its stamp: paced publishers stamp their messages on their own wall clock from the
+start; "-" for unpaced ones, whose stamps follow their schedule, not the clock),
 and the documented bound: ``rate x (chunk_flush_s + 0.1 s) + queue_size`` messages, i.e. the open chunk and the FIFO
 (docs/recorder.md).
 """
@@ -151,7 +152,7 @@ def main() -> None:
                 round(r["bound"]),
                 "yes" if r["within_bound"] else "NO",
                 "yes" if r["gap_free_prefix"] else "NO",
-                round(r["newest_data_age_s"], 2),
+                round(r["newest_data_age_s"], 2) if r["rate"] > 0 else "-",
             )
             for r in rows
         ],
