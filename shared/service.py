@@ -60,6 +60,7 @@ from schemas.base import MAX_INPUT_STAMP_NS
 
 from . import codec, keys
 from .errors import InputRejected
+from .inbox import Inbox
 from .seq import SeqTracker
 from .session import open_session
 from .settings import ServiceSettings, ZenohSettings
@@ -135,68 +136,6 @@ OFFLINE_PLAYER = PLAYER_PREFIX + "offline"
 MAX_COUNTED_PAIRS = 65_536
 
 
-class _Inbox:
-    """The inbound queue between Zenoh's delivery threads and the processing thread, bounded in items and bytes.
-
-    ``put`` holds the delivery thread while the queue is full, for at most ``block_s``; then it drops and counts,
-    and keeps dropping at once (no further hold) until the queue has drained to half its bounds."""
-
-    def __init__(self, max_items: int, max_bytes: int, block_s: float) -> None:
-        self.max_items, self.max_bytes, self.block_s = max_items, max_bytes, block_s
-        self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
-        self._lock = threading.Lock()
-        self.bytes = 0
-        self.dropped = 0
-        self._shedding = False
-
-    def _admit(self, size: int) -> bool:
-        n, b = self._q.qsize(), self.bytes
-        if self._shedding:
-            if n > self.max_items // 2 or b > self.max_bytes // 2:
-                return False
-            self._shedding = False
-        return n < self.max_items and b + size <= self.max_bytes
-
-    def put(self, item: Any, size: int, stop: threading.Event) -> bool:
-        deadline: float | None = None
-        while True:
-            with self._lock:
-                if self._admit(size):
-                    self.bytes += size
-                    self._q.put((item, size))
-                    return True
-                shedding = self._shedding
-            now = time.monotonic()
-            if deadline is None:
-                deadline = now + self.block_s
-            if shedding or stop.is_set() or now >= deadline:
-                with self._lock:
-                    self._shedding = True
-                    self.dropped += 1
-                return False
-            time.sleep(0.001)
-
-    def put_control(self, item: Any) -> None:
-        """An item that is never dropped and costs no bytes (the stop sentinel)."""
-        self._q.put((item, 0))
-
-    def get(self, timeout: float | None = None) -> Any:
-        """The next item (``queue.Empty`` after ``timeout`` s; None: do not wait)."""
-        item, size = self._q.get(timeout=timeout) if timeout is not None else self._q.get_nowait()
-        if size:
-            with self._lock:
-                self.bytes -= size
-        return item
-
-    def qsize(self) -> int:
-        return self._q.qsize()
-
-    def take_dropped(self) -> int:
-        with self._lock:
-            n, self.dropped = self.dropped, 0
-        return n
-
-
 class _DiagLimiter:
     """Token bucket per reason so a flood of bad input cannot flood the diag key (counts are kept)."""
 
@@ -236,7 +175,7 @@ class Service:
         Header(stamp_ns=0, source=self.source)  # publish stamps it unvalidated online: check it once here
         self.counters = Counters()
         self.session: zenoh.Session | None = None
-        self._queue = _Inbox(settings.queue_size, settings.queue_max_bytes, settings.enqueue_block_s)
+        self._queue = Inbox(settings.queue_size, settings.queue_max_bytes, settings.enqueue_block_s)
         self._max_payload = settings.max_payload_bytes
         self.seq = SeqTracker()
         self._stop = threading.Event()

@@ -24,6 +24,11 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
     if settings.listen:
         cfg.insert_json5("listen/endpoints", json.dumps(settings.listen))
     cfg.insert_json5("scouting/multicast/enabled", json.dumps(settings.multicast_scouting))
+    if settings.block_close_s is not None:
+        cfg.insert_json5(
+            "transport/link/tx/queue/congestion_control/block/wait_before_close",
+            json.dumps(round(settings.block_close_s * 1e6)),
+        )
     _insert_tls(cfg, settings)
     return cfg
 

@@ -52,6 +52,13 @@ class ZenohSettings(BaseSettings):
     )
     tls_cert: Path | None = Field(default=None, description="this process's certificate: its identity (mutual TLS)")
     tls_key: Path | None = Field(default=None, description="the private key of tls_cert")
+    block_close_s: float | None = Field(
+        default=None,
+        gt=0.0,
+        description="how long a blocking (CongestionControl.BLOCK) message may wait for a full link queue before Zenoh"
+        " closes the link, s (None: Zenoh's 5 s). Routers wait longer (fixstream router: 60 s), so a subscriber that is"
+        " slow for a while back-pressures the publishers instead of losing its session and what was in flight",
+    )
     connect_timeout_s: float = Field(
         default=30.0,
         ge=-1.0,
@@ -101,9 +108,10 @@ class ServiceSettings(BaseSettings):
     enqueue_block_s: float = Field(
         default=1.0,
         ge=0.0,
-        le=5.0,
+        le=50.0,
         description="longest a full queue holds Zenoh's delivery thread (slowing blocking publishers) before samples"
-        " are dropped and counted (queue_full); well below the session lease, so a busy service keeps its session, s",
+        " are dropped and counted (queue_full); below the router's 60 s wait before it closes a blocked link, so a busy"
+        " service keeps its session, s",
     )
     end_wait_s: float = Field(
         default=5.0,

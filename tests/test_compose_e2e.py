@@ -73,13 +73,16 @@ def test_up_records_the_demo_scenario(tmp_path: Path) -> None:
     streams = sum(
         n for k, n in counts.items() if k.startswith(player_keys) or k.startswith("fixstream/group/group1/uplink/")
     )
-    # the demo publishes a few deliberately invalid samples (NaN) that the recorder refuses and reports:
-    # everything the player published was either recorded or refused with a diagnostic, nothing lost
-    # (each refusal also shows as a seq gap of the player's stream, reported as seq_gap)
+    # the demo publishes a few deliberately invalid samples (NaN) that the recorder refuses, reports and keeps byte
+    # for byte on fixstream/rejected/<key>: everything the player published is in the file, nothing lost, and the
+    # player's streams show no seq gap (a refused sample is recorded, not dropped)
     refused = max((d["count"] for d in recorder_diags if d["reason"] == "non_finite"), default=0)
     gaps = max((d["count"] for d in recorder_diags if d["reason"] == "seq_gap"), default=0)
-    assert gaps == refused
-    assert streams + refused == int(published.group(1))
+    kept_raw = sum(n for k, n in counts.items() if k.startswith("fixstream/rejected/fixstream/sensor/"))
+    assert refused > 0, "the demo's NaN samples were not refused"
+    assert kept_raw == refused
+    assert gaps == 0
+    assert streams + kept_raw == int(published.group(1))
     assert {d["reason"] for d in recorder_diags} <= {"non_finite", "seq_gap"}, [d["reason"] for d in recorder_diags]
     assert not (REPO / "recordings").exists() or not any(
         p.stat().st_mtime > files[0].stat().st_mtime - 60 for p in (REPO / "recordings").glob("*.mcap")

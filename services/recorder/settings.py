@@ -68,8 +68,15 @@ class RecorderSettings(ServiceSettings):
         default=4096,
         ge=16,
         le=1 << 20,
-        description="samples Zenoh holds for the recorder (a FIFO) before it holds the sender back; with the open chunk"
+        description="samples held for the recorder (its inbox) before it holds the senders back; with the open chunk"
         " this is all a SIGKILL can lose",
+    )
+    enqueue_block_s: float = Field(
+        default=30.0,
+        ge=0.0,
+        le=50.0,
+        description="how long a full inbox holds the senders back (blocking publishers wait) before samples are dropped"
+        " and counted (queue_full): a recorder behind for a while slows the stack rather than lose data, s",
     )
     diag_interval_s: float = Field(
         default=1.0,

@@ -14,6 +14,8 @@ from shared.session import open_session
 from shared.settings import ZenohSettings
 
 log = logging.getLogger("fixstream.router")
+#: the router's wait before it closes a link whose queue a blocking message cannot enter, s
+ROUTER_BLOCK_CLOSE_S = 60.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,6 +26,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=Path,
         help="a Zenoh JSON5 configuration to start from (e.g. config/zenoh/router-secure.json5: access control);"
         " default: $FIXSTREAM_ZENOH_CONFIG_FILE",
+    )
+    parser.add_argument(
+        "--block-close-s",
+        type=float,
+        default=ROUTER_BLOCK_CLOSE_S,
+        help="seconds a blocking message may wait for a slow subscriber's full link before the router closes that"
+        " link (Zenoh's default is 5 s: a subscriber busy for 5 s would lose its session and what was in flight)",
     )
 
 
@@ -37,6 +46,7 @@ def run(args: argparse.Namespace) -> int:
             "connect": args.connect,
             "multicast_scouting": False,
             "config_file": args.config or env.config_file,
+            "block_close_s": args.block_close_s,
         }
     )
     stop = threading.Event()

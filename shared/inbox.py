@@ -1,0 +1,79 @@
+"""The bounded queue between Zenoh's delivery threads and a process's own thread.
+
+Zenoh delivers samples on its own threads. Holding such a thread is how a subscriber slows blocking
+(``CongestionControl.BLOCK``) publishers down, but holding it too long costs the session (the router closes a
+link whose queue a blocking message cannot enter: Zenoh's default is 5 s, ``fixstream router`` waits 60 s), and
+Zenoh's own FIFO handler, once full, drops what arrives without a word. So every fixstream process receives
+through an :class:`Inbox`: bounded in items and bytes, it holds the delivery thread while it is full for at most
+``block_s``, then drops and *counts* (and keeps dropping at once, with no further hold, until it has drained to
+half its bounds).
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from typing import Any
+
+
+class Inbox:
+    """The inbound queue between Zenoh's delivery threads and the processing thread, bounded in items and bytes.
+
+    ``put`` holds the delivery thread while the queue is full, for at most ``block_s``; then it drops and counts,
+    and keeps dropping at once (no further hold) until the queue has drained to half its bounds."""
+
+    def __init__(self, max_items: int, max_bytes: int, block_s: float) -> None:
+        self.max_items, self.max_bytes, self.block_s = max_items, max_bytes, block_s
+        self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._lock = threading.Lock()
+        self.bytes = 0
+        self.dropped = 0
+        self._shedding = False
+
+    def _admit(self, size: int) -> bool:
+        n, b = self._q.qsize(), self.bytes
+        if self._shedding:
+            if n > self.max_items // 2 or b > self.max_bytes // 2:
+                return False
+            self._shedding = False
+        return n < self.max_items and b + size <= self.max_bytes
+
+    def put(self, item: Any, size: int, stop: threading.Event) -> bool:
+        deadline: float | None = None
+        while True:
+            with self._lock:
+                if self._admit(size):
+                    self.bytes += size
+                    self._q.put((item, size))
+                    return True
+                shedding = self._shedding
+            now = time.monotonic()
+            if deadline is None:
+                deadline = now + self.block_s
+            if shedding or stop.is_set() or now >= deadline:
+                with self._lock:
+                    self._shedding = True
+                    self.dropped += 1
+                return False
+            time.sleep(0.001)
+
+    def put_control(self, item: Any) -> None:
+        """An item that is never dropped and costs no bytes (the stop sentinel)."""
+        self._q.put((item, 0))
+
+    def get(self, timeout: float | None = None) -> Any:
+        """The next item (``queue.Empty`` after ``timeout`` s; None: do not wait)."""
+        item, size = self._q.get(timeout=timeout) if timeout is not None else self._q.get_nowait()
+        if size:
+            with self._lock:
+                self.bytes -= size
+        return item
+
+    def qsize(self) -> int:
+        return self._q.qsize()
+
+    def take_dropped(self) -> int:
+        with self._lock:
+            n, self.dropped = self.dropped, 0
+        return n
