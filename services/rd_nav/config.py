@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 
 class RdNavConfig(BaseModel):
@@ -23,6 +23,36 @@ class RdNavConfig(BaseModel):
     # ---- particle filter (§4.4) ----
     n_particles: int = Field(default=1000, ge=10, description="N [E] (§4.4 step 1; 300..2000 equivalent)")
     r0_m: float = Field(default=10.0, gt=0.0, description="initial disc radius R0, m [E]")
+    process_model: Literal["dr_errors", "paper"] = Field(
+        default="dr_errors",
+        description="dr_errors: particles (and the EKF) carry the DR error states of services/rd_nav/drift.py "
+        "(speed bias, time-driven; heading and scale errors, distance-driven) [E]; paper: the digest's white "
+        "q = q_rel*path + q_abs per q_step_s (+ q_drift_mps) [E, §4.4]",
+    )
+    # ---- DR error model (process_model dr_errors; the digest's §5.4 sensor errors by default) ----
+    dr_speed_bias_mps: float = Field(
+        default=0.05, ge=0.0, description="speed bias (additive speed error), Gauss-Markov sigma, m/s [D §5.4]"
+    )
+    dr_speed_bias_tau_s: float = Field(default=300.0, gt=0.0, description="its correlation time, s [D §5.4]")
+    dr_heading_sigma_deg: float = Field(default=2.0, ge=0.0, description="heading error Gauss-Markov sigma, deg [D]")
+    dr_heading_tau_s: float = Field(default=300.0, gt=0.0, description="its correlation time, s [D §5.4]")
+    dr_speed_scale: float = Field(
+        default=0.0, ge=0.0, description="speed scale-factor error Gauss-Markov sigma (fraction of the speed) [E]"
+    )
+    dr_speed_scale_tau_s: float = Field(default=300.0, gt=0.0, description="its correlation time, s [E]")
+    dr_speed_white_mps: float = Field(default=0.02, ge=0.0, description="white speed noise per sample, m/s [D]")
+    dr_heading_white_deg: float = Field(default=0.5, ge=0.0, description="white heading noise per sample, deg [D]")
+    dr_sample_period_s: float = Field(default=1.0, gt=0.0, description="DVL/heading sample period, s [D]")
+    dr_floor_m: float = Field(
+        default=0.1, ge=0.0, description="isotropic model floor per dr_floor_path_m of path (turns, speed steps), m [E]"
+    )
+    dr_floor_path_m: float = Field(default=15.0, gt=0.0, description="path the floor refers to (one REF cycle), m [E]")
+    predict_lag_s: float = Field(
+        default=40.0,
+        gt=0.0,
+        description="dr_errors: without cycles, the filter is predicted up to this long before the latest sensor "
+        "time (long gaps stay within the DR buffer) [E]",
+    )
     q_rel: float = Field(default=0.07, ge=0.0, description="process noise per step, fraction of DR path [E]")
     q_abs_m: float = Field(default=0.3, ge=0.0, description="process noise per step, absolute, m [E]")
     q_step_s: float = Field(default=10.0, gt=0.0, description="time step the q figures refer to (one REF cycle), s [E]")
@@ -77,6 +107,12 @@ class RdNavConfig(BaseModel):
     gate_probability: float = Field(default=0.999, gt=0.0, lt=1.0)
     drop_single_outlier: bool = Field(
         default=True, description="use a gated-out cycle without one late follower if the rest passes [E]"
+    )
+    outlier_only_if_gated: bool = Field(
+        default=True,
+        description="look for one late arrival only in a cycle the NIS gate rejects; false: also in a cycle inside "
+        "the gate whose residual alone fails chi2_1 along one arrival (with M = 2 a position error looks the same: "
+        "in fault-free runs a 3-sigma excursion was then taken for a late leader and the lock lost) [E]",
     )
     reinit: bool = Field(default=True, description="snapshot re-initialisation after K rejections [E]")
     reinit_k: int = Field(default=3, ge=1, description="K consecutive gated-out cycles [E]")
@@ -146,3 +182,9 @@ class RdNavConfig(BaseModel):
     init_from_snapshots: bool = Field(
         default=True, description="without a start position, initialise from K consistent snapshots [E]"
     )
+
+    @model_validator(mode="after")
+    def _lag(self) -> RdNavConfig:
+        if self.predict_lag_s + self.max_cycle_span_s >= self.dr_buffer_s:
+            raise ValueError("predict_lag_s + max_cycle_span_s must be shorter than dr_buffer_s")
+        return self
