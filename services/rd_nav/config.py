@@ -73,6 +73,11 @@ class RdNavConfig(BaseModel):
         default=1.5, ge=0.0, description="extra diffusion per second while DR is invalid (frozen), m/s [E]"
     )
     roughening_m: float = Field(default=0.1, ge=0.0, description="roughening jitter after resampling, m [E]")
+    roughening_shrink: bool = Field(
+        default=True,
+        description="shrink the resampled cloud towards its mean as the jitter spreads it (covariance kept, Liu & "
+        "West); false: the digest's plain jitter, which widens the cloud by 0.1 m at every resampling [E]",
+    )
     resample_fraction: float = Field(default=0.5, gt=0.0, le=1.0, description="resample when N_eff < f*N [E]")
     epsilon: float = Field(default=0.05, ge=0.0, lt=1.0, description="robust outlier weight eps [E]")
     outlier_m2: float = Field(default=25.0, gt=0.0, description="outlier floor exp(-m2/2) in the mixture [E]")

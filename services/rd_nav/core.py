@@ -635,7 +635,7 @@ class RdNavCore:
                 x_hat = m
         n_eff = self.pf.n_eff()
         if event == "USED" and n_eff < cfg.resample_fraction * cfg.n_particles:
-            self.pf.resample(cfg.roughening_m)
+            self.pf.resample(cfg.roughening_m, cfg.roughening_shrink)
         if not self.pf.finite():  # never expected; keep the state valid if it happens
             self.pf.init_gaussian(
                 x_hat if np.isfinite(x_hat).all() else self.ekf.x, np.eye(2) * 100.0, self._error_cov()

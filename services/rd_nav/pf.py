@@ -152,17 +152,31 @@ class ParticleFilter:
         self.w = w / total
         return True, m2_min
 
-    def resample(self, roughening_m: float) -> None:
-        """Systematic resampling followed by roughening jitter N(0, sigma_r^2 I) (§4.4 step 6)."""
+    def resample(self, roughening_m: float, shrink: bool = False) -> None:
+        """Systematic resampling followed by roughening jitter N(0, sigma_r^2 I) (§4.4 step 6).
+
+        ``shrink``: the jitter does not widen the cloud (Liu & West 2001): X <- m + a (X - m) + sigma_r xi with
+        a = sqrt(1 - sigma_r^2 / lambda) along each principal axis (lambda its variance; no jitter along an axis
+        narrower than sigma_r), so the resampled cloud keeps its mean and covariance while its duplicates separate."""
         cs = np.cumsum(self.w)
         cs[-1] = 1.0
         u = (self.rng.random() + np.arange(self.n)) / self.n
         idx = np.minimum(np.searchsorted(cs, u, side="right"), self.n - 1)
         self.X = self.X[idx]
         self.E = self.E[idx]
-        if roughening_m > 0.0:
-            self.X += self.rng.normal(0.0, roughening_m, self.X.shape)
         self.w = np.full(self.n, 1.0 / self.n)
+        if roughening_m <= 0.0:
+            return
+        if not shrink:
+            self.X += self.rng.normal(0.0, roughening_m, self.X.shape)
+            return
+        m, C = self.estimate()
+        lam, V = np.linalg.eigh(C)
+        r2 = np.minimum(roughening_m**2, 0.5 * np.maximum(lam, 0.0))  # jitter at most half of each axis' variance
+        a = np.sqrt(np.where(lam > 0.0, 1.0 - r2 / np.where(lam > 0.0, lam, 1.0), 1.0))
+        Y = (self.X - m) @ V
+        Y = Y * a[None, :] + self.rng.standard_normal(Y.shape) * np.sqrt(r2)[None, :]
+        self.X = m[None, :] + Y @ V.T
 
     def finite(self) -> bool:
         return bool(
