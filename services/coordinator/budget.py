@@ -69,14 +69,37 @@ def drms_full(
         dt = tau_s[None, None, :M] + s / c_mps
         uu = np.einsum("vpmi,vpni->vpmn", uF[..., :2], uF[..., :2])
         R += sigma_v_mps**2 * dt[..., :, None] * dt[..., None, :] * uu
-    Rinv_H = np.linalg.solve(R, H)
-    F = np.einsum("vpmi,vpmj->vpij", H, Rinv_H)
+    with np.errstate(all="ignore"):
+        Rinv_H = _solve(R, H)
+        F = np.einsum("vpmi,vpmj->vpij", H, Rinv_H)
     fxx, fxy, fyy = F[..., 0, 0], F[..., 0, 1], F[..., 1, 1]
     det = fxx * fyy - fxy * fxy
-    ok = det > 1e-12 * (fxx + fyy) ** 2
+    ok = np.isfinite(det) & (det > 1e-12 * (fxx + fyy) ** 2)
     with np.errstate(divide="ignore", invalid="ignore"):
         tr = (fxx + fyy) / np.where(ok, det, 1.0)
     return np.where(ok & (tr >= 0.0), np.sqrt(np.abs(tr)), np.inf)
+
+
+def _solve(R: F64, H: F64) -> F64:
+    """R^-1 H for a batch; a singular or non-finite R (e.g. a beacon 1e12 m away) gives NaN there, not an error."""
+    bad = ~np.isfinite(R).all(axis=(-1, -2))
+    Rs = np.where(bad[..., None, None], np.eye(R.shape[-1]), R)
+    try:
+        X = np.linalg.solve(Rs, H)
+    except np.linalg.LinAlgError:
+        X = np.empty_like(H)
+        flat_R, flat_H, flat_X = (
+            Rs.reshape(-1, *R.shape[-2:]),
+            H.reshape(-1, *H.shape[-2:]),
+            X.reshape(-1, *H.shape[-2:]),
+        )
+        for i in range(flat_R.shape[0]):
+            try:
+                flat_X[i] = np.linalg.solve(flat_R[i], flat_H[i])
+            except np.linalg.LinAlgError:
+                flat_X[i] = np.nan
+    X[bad] = np.nan
+    return X
 
 
 def schedule_fits(
