@@ -82,7 +82,7 @@ def drms_full(
 
 def _solve(R: F64, H: F64) -> F64:
     """R^-1 H for a batch; a singular or non-finite R (e.g. a beacon 1e12 m away) gives NaN there, not an error."""
-    bad = ~np.isfinite(R).all(axis=(-1, -2))
+    bad = np.asarray(~np.isfinite(R).all(axis=(-1, -2)))
     Rs = np.where(bad[..., None, None], np.eye(R.shape[-1]), R)
     try:
         X = np.linalg.solve(Rs, H)
