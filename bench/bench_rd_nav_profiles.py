@@ -8,7 +8,9 @@ files also the beacon set and leader the coordinator assigned and their single-c
 movers' true tracks, computed here independently of the coordinator's own scoring (per point with
 :mod:`services.rd_nav.geometry`: the full R of §4.2 with the sound-speed and motion-compensation terms).
 
-    python -m bench.bench_rd_nav_profiles [--runs 40] [--seed 1] [--files rd_hover ...] [--workers 1]
+    python -m bench.bench_rd_nav_profiles [--runs 10] [--seed 1] [--files rd_hover ...] [--workers 1]
+
+(``python -m bench rd_nav_profiles`` runs the defaults; docs/rd_nav.md quotes --runs 20.)
 
 Prints Markdown tables and one JSON line (``JSON {...}``).
 """
@@ -194,11 +196,11 @@ def tables(results: list[dict[str, Any]]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--runs", type=int, default=40)
+    ap.add_argument("--runs", type=int, default=10)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--files", nargs="*", default=FILES)
-    args = ap.parse_args(argv)
+    args = ap.parse_args([] if argv is None else argv)
     results = []
     for name in args.files:
         results.append(run_file(name, args.runs, args.seed, args.workers))
@@ -210,4 +212,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(main(sys.argv[1:]))

@@ -73,6 +73,13 @@ class RdNavConfig(BaseModel):
         default=1.5, ge=0.0, description="extra diffusion per second while DR is invalid (frozen), m/s [E]"
     )
     roughening_m: float = Field(default=0.1, ge=0.0, description="roughening jitter after resampling, m [E]")
+    degenerate_neff_fraction: float = Field(
+        default=0.02,
+        ge=0.0,
+        lt=1.0,
+        description="after an update leaving N_eff below this fraction of N, positions are redrawn from the "
+        "Gaussian posterior of the prior cloud's moments and the linearised cycle (0: never) [E]",
+    )
     roughening_shrink: bool = Field(
         default=True,
         description="shrink the resampled cloud towards its mean as the jitter spreads it (covariance kept, Liu & "
@@ -110,6 +117,13 @@ class RdNavConfig(BaseModel):
     # ---- gating and re-initialisation (§4.4 step 8) ----
     gating: bool = Field(default=True, description="NIS gate at chi2_{M,gate_probability} [E]")
     gate_probability: float = Field(default=0.999, gt=0.0, lt=1.0)
+    gate_after_updates: int = Field(
+        default=4,
+        ge=0,
+        description="no NIS gate (and no late-arrival test) until this many complete cycles have updated the filter "
+        "since its start or re-seed: the first updates from the R0 disc leave a handful of particles, whose spread "
+        "judges an innovation poorly (the robust likelihood still bounds an outlier's pull) [E]",
+    )
     drop_single_outlier: bool = Field(
         default=True, description="use a gated-out cycle without one late follower if the rest passes [E]"
     )

@@ -80,6 +80,7 @@ class CycleData:
     s: F64  # (M,)
     delta: F64  # (M, 2)
     G: F64  # (M, 2, 3) how the DR error states move delta_j (drift.py), zeros without motion compensation
+    iv: F64  # (M,) variance of the trapezoid's error over each delta_j (velocity changes), m^2
     dt: F64  # (M,) receiver-clock time from the leader arrival, s
     tau: F64
     pos_sigma: F64  # (M+1,) leader first
@@ -153,6 +154,7 @@ class RdNavCore:
         self.dr_state: DrPoint | None = None
         self.t_last_update: float | None = None
         self.t_last_fix: float | None = None  # last full (M >= 2) update, re-seed or start: the DR drift grows from it
+        self.updates_since_seed = 0  # complete cycles used since the start or the last re-seed
         self.status = "INIT"
         self.reinit_count = 0
         self.snapshot_starts = 0
@@ -291,6 +293,7 @@ class RdNavCore:
         self.dr_state = self.dr.at(t)
         self.t_last_update = None
         self.t_last_fix = t  # the start disc holds the first cycle's worth of drift
+        self.updates_since_seed = 0
         self.status = "INIT"
         self.reinit.clear()
 
@@ -354,6 +357,7 @@ class RdNavCore:
         s_list: list[float] = []
         dl: list[tuple[float, float]] = []
         gl: list[F64] = []
+        ivl: list[float] = []
         dts: list[float] = []
         taus: list[float] = []
         sig: list[float] = [L.pos_sigma_m]
@@ -366,6 +370,7 @@ class RdNavCore:
             s = d_j = math.nan
             delta = (0.0, 0.0)
             Gj = np.zeros((2, 3))
+            iv_j = 0.0
             if tau is None:
                 flag = "NO_TAU"
             else:
@@ -378,6 +383,7 @@ class RdNavCore:
                 delta = (pb.x_m - pa.x_m, pb.y_m - pa.y_m)
                 dXj = np.array(delta)
                 Gj = np.column_stack([[pb.un_s - pa.un_s, pb.ue_s - pa.ue_s], J90 @ dXj, dXj])
+                iv_j = pb.interp_var_m2 - pa.interp_var_m2
             valid = flag is None and rx.epoch == oc.epoch
             if flag is not None:
                 flags.append(f"{flag}:{fid}")
@@ -403,6 +409,7 @@ class RdNavCore:
                 s_list.append(s)
                 dl.append(delta)
                 gl.append(Gj)
+                ivl.append(iv_j)
                 dts.append(dT)
                 taus.append(float(tau))  # type: ignore[arg-type]
                 sig.append(rx.pos_sigma_m)
@@ -449,6 +456,7 @@ class RdNavCore:
             s=np.array(s_list, dtype=np.float64),
             delta=np.array(dl, dtype=np.float64).reshape(-1, 2),
             G=np.array(gl, dtype=np.float64).reshape(-1, 2, 3),
+            iv=np.array(ivl, dtype=np.float64),
             dt=np.array(dts, dtype=np.float64),
             tau=np.array(taus, dtype=np.float64),
             pos_sigma=np.array(sig, dtype=np.float64),
@@ -480,6 +488,7 @@ class RdNavCore:
                 for k in range(j, M):
                     i = j if cd.dt[j] <= cd.dt[k] else k
                     C = self.drift.white_cov(float(cd.dt[i]), cd.delta[i], cd.G[i][:, 0])
+                    C = C + 0.5 * float(cd.iv[i]) * np.eye(2)
                     mc[j, k] = mc[k, j] = float(u[j] @ C @ u[k])
             node = mc if node is None else node + mc
         elif cfg.motion_compensation and cfg.sigma_dr_velocity_mps > 0.0:
@@ -507,6 +516,9 @@ class RdNavCore:
         zj = np.full(M, cd.depth)
         G: F64 | None = None  # DR error states -> motion compensation (process_model dr_errors)
         C_joint: F64 | None = None
+        z_mean: F64 | None = None
+        Hz: F64 | None = None
+        gauss: tuple[F64, F64, F64, F64, F64] | None = None
         raw_delta = cd.delta
         if self.drift is not None and M > 0 and cfg.motion_compensation:
             G = cd.G
@@ -544,6 +556,8 @@ class RdNavCore:
             rescued = False
             if not math.isfinite(nis):
                 reject = "NON_FINITE_INNOVATION"
+            elif cfg.gating and self.updates_since_seed < cfg.gate_after_updates:
+                flags.append("UNGATED")  # converging from the start disc or a re-seed: the cloud is no judge yet
             elif cfg.gating:
                 gated = nis > self.gates[min(M, 16)]
                 rescue = cfg.drop_single_outlier and M >= 2 and (gated or not cfg.outlier_only_if_gated)
@@ -558,6 +572,9 @@ class RdNavCore:
                     reject = "NIS_GATE"
             if reject is None:
                 prior_w = self.pf.w
+                if T is None:  # the cloud's moments and this cycle's linearisation, for a degenerate update
+                    joint = Hz is not None and C_joint is not None and z_mean is not None
+                    gauss = (z_mean, C_joint, Hz, e, S) if joint else (x_hat, Q, H, e, S)  # type: ignore[assignment]
                 Rw = R
                 if G is not None:  # each particle compensates with its mean DR errors; their shared spread adds to R
                     He = -np.einsum("mi,mij->mj", H, G)
@@ -583,6 +600,8 @@ class RdNavCore:
                     reject = "NO_OVERLAP"
             if reject is None:
                 self.t_last_update = cd.t1
+                if M >= 2:
+                    self.updates_since_seed += 1
                 if M >= 2 and not (cfg.q_drift_weak_geometry and "DEGRADED_GEOMETRY" in flags):
                     self.t_last_fix = cd.t1
                 event = "USED"
@@ -604,6 +623,7 @@ class RdNavCore:
                     self.reinit_count += 1
                     self.reinit.clear()
                     self.t_last_update = self.t_last_fix = cd.t1
+                    self.updates_since_seed = 0
                     event = "REINIT"
                     flags.append("REINIT")
             # EKF shadow: same inputs, its own gate
@@ -627,6 +647,9 @@ class RdNavCore:
             self.counts[f"cycle_{reject}"] += 1
         if cd.reject is None:
             self._last_dropped = dropped if event == "USED" else None
+        if event == "USED" and gauss is not None and self.pf.n_eff() < cfg.degenerate_neff_fraction * cfg.n_particles:
+            self._regenerate(*gauss)  # too few particles carry the posterior (e.g. the first cycle after the R0 disc)
+            flags.append("REGENERATED")
         # estimate (Eq. 6-7) before regeneration, then regenerate (§4.4 steps 6-7)
         x_hat, Q = self.pf.estimate()
         if cfg.estimate == "map" and event == "USED":
@@ -697,6 +720,26 @@ class RdNavCore:
                 if fix is not None:
                     out.append(fix)
         return out
+
+    def _regenerate(self, z: F64, C: F64, H: F64, e: F64, S: F64) -> None:
+        """Resample, then draw the positions from the Gaussian posterior of the prior cloud's moments and this
+        cycle's linearised measurement: K = C H^T S^-1, z+ = z + K e, C+ = C - K S K^T ([E]). A cloud much wider
+        than one cycle's likelihood (the R0 = 10 m disc against ~0.5 m) leaves a handful of particles with weight,
+        whose spread says nothing of the posterior's (nor do their few DR-error means); this keeps its covariance,
+        the DR errors' included (their mean given each drawn position, and the conditional covariance)."""
+        K = np.linalg.solve(S, H @ C).T
+        zp = z + K @ e
+        Cp = C - K @ S @ K.T
+        Pxx = 0.5 * (Cp[:2, :2] + Cp[:2, :2].T)
+        if not (np.isfinite(zp).all() and np.isfinite(Pxx).all()) or np.linalg.eigvalsh(Pxx).min() <= 0.0:
+            return
+        self.pf.resample(0.0)
+        self.pf.X = zp[:2][None, :] + self.rng.standard_normal(self.pf.X.shape) @ np.linalg.cholesky(Pxx).T
+        if zp.size > 2:  # DR errors: their mean given each position, and the conditional covariance (shared)
+            B = np.linalg.solve(Pxx, Cp[:2, 2:]).T  # C_ex C_xx^-1
+            self.pf.E = zp[2:][None, :] + (self.pf.X - zp[:2][None, :]) @ B.T
+            PE = Cp[2:, 2:] - B @ Cp[:2, 2:]
+            self.pf.PE = 0.5 * (PE + PE.T)
 
     def _one_late_arrival(
         self, e: F64, S: F64, ids: list[str], rest_gates: dict[int, float] | None = None, min_delay_m: float = 0.0
@@ -801,8 +844,9 @@ class RdNavCore:
             U = np.array([b.un_s - a.un_s, b.ue_s - a.ue_s])
             step = self.drift.step(b.t_s - a.t_s, dX, U)
             inv = b.invalid_s - a.invalid_s
-            if inv > 0.0:  # DR frozen: the position diffuses (§7.4 DVL dropout)
-                step = replace(step, Q_white=step.Q_white + (cfg.q_dr_invalid_mps * inv) ** 2 * np.eye(2))
+            extra = (cfg.q_dr_invalid_mps * inv) ** 2 + 0.5 * (b.interp_var_m2 - a.interp_var_m2)  # per axis
+            if extra > 0.0:  # DR frozen (§7.4 DVL dropout); velocity changes the trapezoid smooths over
+                step = replace(step, Q_white=step.Q_white + extra * np.eye(2))
             self.pf.predict_drift(dX, step)
             if self.ekf.initialised:
                 self.ekf.predict_drift(dX, step)
@@ -872,6 +916,7 @@ class RdNavCore:
         self.t_state = cd.t1
         self.dr_state = b
         self.t_last_update = self.t_last_fix = cd.t1
+        self.updates_since_seed = 0
         self.status = "INIT"
         self.snapshot_starts += 1
         self.starter.clear()
@@ -896,7 +941,7 @@ class RdNavCore:
             D = Xp - x[None, :]
             Qp = (D.T * self.pf.w) @ D + Gp @ self.pf.PE @ Gp.T + Qv
             inv = b.invalid_s - a.invalid_s
-            Qp = Qp + (self.cfg.q_dr_invalid_mps * inv) ** 2 * np.eye(2)
+            Qp = Qp + ((self.cfg.q_dr_invalid_mps * inv) ** 2 + 0.5 * (b.interp_var_m2 - a.interp_var_m2)) * np.eye(2)
         if not self.dr.valid_at(t):
             status = "LOST"
         elif self.t_last_update is not None and self._cycles_since_update(t) >= self.cfg.dr_only_after_cycles:

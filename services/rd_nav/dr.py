@@ -15,7 +15,9 @@ which DR is invalid and the position is frozen while ``invalid_s`` (cumulative i
 Besides the position, every knot carries U = integral of the horizontal forward unit vector
 (cos(psi) cos(theta), sin(psi) cos(theta)) over the valid DR time (``un_s``, ``ue_s``): the displacement error a
 constant DVL speed bias b causes over an interval is b (U_b - U_a), whether the vehicle moves or hovers
-(:mod:`services.rd_nav.drift`).
+(:mod:`services.rd_nav.drift`), and the variance of what the trapezoid misses where the velocity changes
+(``interp_var_m2``): a step Δv at an unknown instant within a sample interval Δt leaves (u - 1/2) Δv Δt with u
+uniform, variance |Δv|² Δt² / 12 per interval (turns, speed changes, stops and starts).
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ class DrPoint:
     invalid_s: float  # cumulative time with DR invalid
     un_s: float = 0.0  # cumulative time integral of the horizontal forward (heading) unit vector, north, s
     ue_s: float = 0.0  # ... east, s (U of the DR error model: a speed bias b moves DR by b U)
+    interp_var_m2: float = 0.0  # cumulative variance of the trapezoid's error at velocity changes, m^2
 
 
 def body_to_ned_horizontal(
@@ -73,6 +76,7 @@ class DeadReckoner:
         self._inv: list[float] = []
         self._un: list[float] = []
         self._ue: list[float] = []
+        self._iv: list[float] = []
         self._fn: list[float] = []  # horizontal forward unit vector at the knot
         self._fe: list[float] = []
         self._vn: list[float] = []
@@ -131,6 +135,7 @@ class DeadReckoner:
                     self._inv,
                     self._un,
                     self._ue,
+                    self._iv,
                     self._fn,
                     self._fe,
                     self._vn,
@@ -148,6 +153,7 @@ class DeadReckoner:
         self._inv.append(inv)
         self._un.append(un)
         self._ue.append(ue)
+        self._iv.append(self._iv[-1] if self._iv else 0.0)
         self._fn.append(0.0)
         self._fe.append(0.0)
         self._vn.append(0.0)
@@ -167,6 +173,10 @@ class DeadReckoner:
         if k > 0 and self.linear:
             seg = self._segment(k - 1, self._t[k], k)
             self._x[k], self._y[k], self._path[k], self._inv[k], self._un[k], self._ue[k] = seg
+            dt = self._t[k] - self._t[k - 1]
+            both = self._until[k - 1] >= self._t[k] and self._until[k] >= self._t[k]
+            dv2 = (self._vn[k] - self._vn[k - 1]) ** 2 + (self._ve[k] - self._ve[k - 1]) ** 2 if both else 0.0
+            self._iv[k] = self._iv[k - 1] + dv2 * dt * dt / 12.0
 
     def _segment(self, a: int, t: float, b: int | None) -> tuple[float, float, float, float, float, float]:
         """State at time t >= t_a integrated from knot a (trapezoid to knot b if given and valid)."""
@@ -212,7 +222,7 @@ class DeadReckoner:
         if not self._t or t < self._t[0]:
             raise LookupError(f"DR has no data at {t} s")
         if t >= self._t[-1]:
-            return DrPoint(t, *self._segment(len(self._t) - 1, t, None))
+            return DrPoint(t, *self._segment(len(self._t) - 1, t, None), self._iv[-1])
         k = bisect.bisect_right(self._t, t)
         ta, tb = self._t[k - 1], self._t[k]
         f = (t - ta) / (tb - ta) if tb > ta else 0.0
@@ -221,7 +231,14 @@ class DeadReckoner:
             return a[k - 1] + f * (a[k] - a[k - 1])
 
         return DrPoint(
-            t, lerp(self._x), lerp(self._y), lerp(self._path), lerp(self._inv), lerp(self._un), lerp(self._ue)
+            t,
+            lerp(self._x),
+            lerp(self._y),
+            lerp(self._path),
+            lerp(self._inv),
+            lerp(self._un),
+            lerp(self._ue),
+            lerp(self._iv),
         )
 
     def displacement(self, t_a: float, t_b: float) -> tuple[float, float]:
