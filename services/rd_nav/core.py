@@ -626,8 +626,9 @@ class RdNavCore:
                     self.updates_since_seed = 0
                     event = "REINIT"
                     flags.append("REINIT")
-            # EKF shadow: same inputs, its own gate
+            # EKF shadow: same inputs, its own gate (from the same update on as the PF's)
             if cfg.ekf_shadow and self.ekf.initialised:
+                converging = self.updates_since_seed <= cfg.gate_after_updates and "UNGATED" in flags
                 Re = self.measurement_cov(cd, self.ekf.x)
                 ekf_res = self.ekf.update(
                     cd.d,
@@ -637,7 +638,7 @@ class RdNavCore:
                     raw_delta if G is not None else cd.delta,
                     cd.depth,
                     zj,
-                    self.gates[min(M, 16)] if cfg.gating else None,
+                    self.gates[min(M, 16)] if cfg.gating and not converging else None,
                     G,
                 )
                 ekf_state = ("USED" if ekf_res.accepted else "REJECTED", ekf_res.nis, ekf_res.residual_m.tolist())

@@ -4,7 +4,8 @@ A discrete-event simulation on the true (scenario) clock, seconds from the start
 
 * **Field**: surveyed nodes (and base docks); the true node positions may differ from the survey.
 * **Vehicles**: docked AUVs act as beacons per the latest :class:`BeaconAssignment` fed in with
-  :meth:`Simulation.feed`; moving AUVs follow a polyline at constant speed and depth. In a fleet scenario
+  :meth:`Simulation.feed`; moving AUVs follow a polyline at constant depth, at constant speed or with a speed per leg
+  and hover times at the waypoints (:class:`ProfilePath`). In a fleet scenario
   they dock at the nodes of their route, service them, report ``SERVICE_DONE`` and leave only after a
   :class:`DepartureGrant` (fed in), announcing ``DEPARTED`` with their planned route.
 * **Acoustic channel**: the leader broadcasts every T_c (uniform 0-10 ms emission jitter); each follower
@@ -14,7 +15,9 @@ A discrete-event simulation on the true (scenario) clock, seconds from the start
   moving antenna meets the wavefront (solved iteratively), plus multipath delays, with independent packet
   loss and blackouts; the detection epoch is read on its own clock ``theta = b + (1 + skew) t + steps`` with
   noise sigma_t, and stamped on the data clock (true time + stamp jitter).
-* **Navigation sensors** of moving AUVs: DVL speed and heading with Gauss-Markov + white errors (1 Hz),
+* **Navigation sensors** of moving AUVs: DVL speed (V (1 + k) + b: a Gauss-Markov scale factor k, 0 in the
+  digest's model, and the digest's additive Gauss-Markov error b, which also acts at rest) and heading with
+  Gauss-Markov + white errors (1 Hz),
   depth, and the on-board sound-speed estimate (true c + bias + white error per cycle).
 
 Everything produced is a schema message with ``header.stamp_ns`` on the data clock, returned in stamp
