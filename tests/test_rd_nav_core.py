@@ -384,7 +384,7 @@ def test_dr_only_after_three_missed_cycles_and_lost_on_dvl_dropout() -> None:
 def test_reinit_from_consistent_snapshots_after_loss_of_lock() -> None:
     """K = 3 gated-out cycles with consistent snapshot fixes re-seed the cloud (status REINIT)."""
     rig = Rig()
-    rig.run_cycles(2)
+    rig.run_cycles(6)  # past the first gate_after_updates (4) updates from the start disc, when no gate applies
     # teleport the estimate 60 m away: the next cycles fail the NIS gate
     rig.core.pf.X += np.array([60.0, -40.0])
     rig.core.ekf.x = rig.core.ekf.x + np.array([60.0, -40.0])

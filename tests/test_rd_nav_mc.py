@@ -123,7 +123,16 @@ def test_loss_excursion_is_followed() -> None:
     digest's fixed q and 5 m re-seed rule over consecutive cycles only) must break it, or this test shows nothing."""
     run = _loss_run_3()
     assert run["pf_summary"]["max_m"] <= 12.0, run["pf_summary"]
-    old = _loss_run_3(q_drift_mps=0.0, reinit_drift_sigma=0.0, reinit_strict_chain=True)
+    old = _loss_run_3(  # the digest's filter: white q, fixed re-seed rule, and none of issue 16's robustness rules
+        process_model="paper",
+        q_drift_mps=0.0,
+        reinit_drift_sigma=0.0,
+        reinit_strict_chain=True,
+        outlier_only_if_gated=False,
+        roughening_shrink=False,
+        degenerate_neff_fraction=0.0,
+        gate_after_updates=0,
+    )
     assert old["pf_summary"]["max_m"] > 12.0, old["pf_summary"]
 
 

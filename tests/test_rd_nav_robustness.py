@@ -154,7 +154,8 @@ def test_t_rob_7_receiver_clock_skew() -> None:
 def test_t_rob_8_undersized_process_noise() -> None:
     """T-ROB-8: q_rel = 0.02, q_abs = 0.05 m, no drift term: with gating + re-init RMS <= 1.0, max <= 8 m, re-inits > 0;
     without them the filter diverges (the digest's prototype: RMS 95 m), shown here as RMS > 5 m."""
-    small = {"q_rel": 0.02, "q_abs_m": 0.05, "q_drift_mps": 0.0}  # every process-noise term undersized
+    # the digest's white process noise (process_model paper), every term undersized
+    small = {"process_model": "paper", "q_rel": 0.02, "q_abs_m": 0.05, "q_drift_mps": 0.0}
     agg, _ = mc(ref("inside", duration_s=3600.0), 2, 5800, **small)
     p = agg["pf"]
     assert p["rms_m"] <= 1.0 and p["max_m"] <= 8.0, p
@@ -241,7 +242,7 @@ def test_t_rob_full_sizes() -> None:
     assert step["reinit_total"] == 0 and abs(step["pf"]["rms_m"] / nominal["pf"]["rms_m"] - 1.0) <= 0.02
     p = mc(ref("inside", clock_skew_ppm=20.0), 30, 26_000)[0]["pf"]
     assert abs(p["mean_x_m"]) <= 0.15 and abs(p["mean_y_m"]) <= 0.15 and p["rms_m"] <= 0.70
-    agg = mc(ref("inside"), 30, 27_000, q_rel=0.02, q_abs_m=0.05, q_drift_mps=0.0)[0]
+    agg = mc(ref("inside"), 30, 27_000, process_model="paper", q_rel=0.02, q_abs_m=0.05, q_drift_mps=0.0)[0]
     assert agg["pf"]["rms_m"] <= 1.0 and agg["pf"]["max_m"] <= 8.0 and agg["reinit_total"] > 0
     p = mc(ref("inside", node_error_sigma_m=0.5), 30, 28_000)[0]["pf"]
     assert p["rms_m"] <= 1.3 and p["max_m"] <= 5.0

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 
@@ -18,6 +20,23 @@ class CoordinatorConfig(BaseModel):
     cycle_period_s: float = Field(default=10.0, gt=0.0, description="T_c, s [E]")
     c_mps: float = Field(default=1500.0, gt=0.0, description="nominal sound speed, m/s")
     sigma_t_s: float = Field(default=0.2e-3, gt=0.0, description="arrival-time noise, for the cost in m [E]")
+    cost_model: Literal["full", "arrival_time"] = Field(
+        default="full",
+        description="full: every (set, leader, reply order) scored by its single-cycle CRLB DRMS with the full R of "
+        "§4.2/§4.6 (arrival time, follower jitter, sound speed, node survey, DR motion compensation) and only "
+        "schedules that fit T_c; arrival_time: the digest's §4.8 recipe (GDOP with arrival-time noise only, leader "
+        "by the shortest cycle) [E]",
+    )
+    sigma_f_s: float = Field(default=0.0, ge=0.0, description="follower reply jitter, s (full cost) [E]")
+    sigma_c_mps: float = Field(
+        default=0.3, ge=0.0, description="per-cycle sound-speed error of the receivers, m/s (full cost) [D §5.4]"
+    )
+    sigma_node_m: float = Field(default=0.0, ge=0.0, description="node survey error per axis, m (full cost) [E]")
+    sigma_dr_velocity_mps: float = Field(
+        default=0.05, ge=0.0, description="DR velocity error over a cycle's arrivals, m/s (full cost) [E]"
+    )
+    t_pkt_s: float = Field(default=0.4, ge=0.0, description="packet length, s (schedule check) [E]")
+    guard_s: float = Field(default=0.1, ge=0.0, description="guard time, s (schedule check, §4.9) [E]")
     horizon_s: float = Field(default=900.0, ge=0.0, description="planned-route horizon H, s [E]")
     route_sample_m: float = Field(default=250.0, gt=0.0, description="spacing of route points, m [E]")
     eval_depth_m: float = Field(default=80.0, description="receiver depth of the evaluation points, m [E]")

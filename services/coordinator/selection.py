@@ -1,15 +1,24 @@
-"""Active beacon-set selection by GDOP with hysteresis (digest §4.8 [E]).
+"""Active beacon-set selection with hysteresis (digest §4.8 [E]), scored by the full single-cycle error budget.
 
-Cost of a set S over evaluation points p (the moving AUVs' positions and planned routes over a horizon):
-``J(S) = max_p GDOP(p; S) * c * sigma_t`` (m), GDOP with receiver arrival-time noise only. With a shared
-leader arrival the TDOA Fisher matrix is leader-invariant and equals the centred TOA form
+Cost of an *ordered* set (leader, followers in reply-slot order) over evaluation points p (the moving AUVs'
+positions and planned routes over a horizon): ``J = max_p DRMS_CRLB(p)`` (m) with the full R of §4.2/§4.6
+(:mod:`.budget`: arrival time, reply jitter, sound speed, node survey, motion compensation). The leader matters:
+with the sound-speed term a different leader for the same three beacons can halve the bound.
+
+Search (exact, cheap): the arrival-time-only GDOP of a set is leader-invariant and a lower bound of every ordered
+variant's full DRMS (adding positive semi-definite terms to R can only raise the CRLB). With a shared leader
+arrival the TDOA Fisher matrix equals the centred TOA form
 
     F = sum_k u_k u_k^T - (1/|S|) (sum_k u_k)(sum_k u_k)^T        (u_k: horizontal part of the unit vector)
 
-so every set is scored at once, vectorised over sets and points. Sets with a point within
-``baseline_ext_margin_m`` of a baseline extension (beyond a beacon) are excluded unless all are.
-The leader is the member that minimises the cycle duration max_j (r_1j / c + tau_j), ties broken by the
-smallest sum of leader-follower distances, then by id.
+so every set's bound is computed at once; sets are then scored in full (every leader and reply order, schedules
+that do not fit T_c at some point excluded, §4.9) in increasing order of their bound until the bound exceeds the
+best full cost found. Sets with a point within ``baseline_ext_margin_m`` of a baseline extension (beyond a beacon)
+are excluded unless all are. Ties (within 1e-9) go to the shorter cycle max_j (r_1j / c + tau_j), then to the
+smallest sum of leader-follower distances, then to the ids.
+
+``cost_model = "arrival_time"`` is the digest's recipe: sets by the GDOP with arrival-time noise only, the leader by
+the shortest cycle.
 """
 
 from __future__ import annotations
@@ -23,6 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .budget import drms_full, schedule_fits
 from .config import CoordinatorConfig
 
 F64 = NDArray[np.floating[Any]]
@@ -122,7 +132,7 @@ def select(
     cfg: CoordinatorConfig,
     n_followers: int,
 ) -> Selection | None:
-    """Best set of 1 + n_followers beacons for the evaluation points, with hysteresis against ``current``."""
+    """Best ordered set of 1 + n_followers beacons for the evaluation points, with hysteresis against ``current``."""
     ids = sorted(beacons)
     k = n_followers + 1
     if len(ids) < k or k < 2:
@@ -132,12 +142,124 @@ def select(
     if points.shape[0] == 0:
         points = np.array([[*pos[:, :2].mean(axis=0), cfg.eval_depth_m]])
     g = gdop_sets(pos, points, combos)
-    cost = g.max(axis=1) * cfg.c_mps * cfg.sigma_t_s
+    bound = g.max(axis=1) * cfg.c_mps * cfg.sigma_t_s
     ext = extension_pairs(pos, points, cfg.baseline_ext_margin_m, cfg.baseline_ext_min_beyond_m)
     bad = np.zeros(combos.shape[0], dtype=bool)
     for a, b in itertools.combinations(range(k), 2):
         bad |= ext[combos[:, a], combos[:, b]]
-    ranked = np.where(bad, np.inf, cost) if not bad.all() else cost
+    ranked = np.where(bad, np.inf, bound) if not bad.all() else bound
+    taus = list(cfg.tau_slots_s[:n_followers])
+    if cfg.cost_model == "arrival_time":
+        return _select_arrival_time(ids, pos, combos, ranked, bound, current, cfg, taus)
+    best = _best_ordered(ids, pos, points, combos, ranked, cfg, taus)
+    if best is None:
+        return None
+    cost, members, duration = best
+    if current is not None and set(current) <= set(ids) and len(current) == k:
+        cur_combo = tuple(sorted(ids.index(m) for m in current))
+        ci = int(np.flatnonzero((combos == np.array(cur_combo)).all(axis=1))[0])
+        if math.isfinite(ranked[ci]):
+            cur_cost = float(ordered_cost(current, beacons, points, cfg, taus)[0])
+            if math.isfinite(cur_cost) and not cost < (1.0 - cfg.hysteresis) * cur_cost:
+                return Selection(
+                    members=tuple(current),
+                    tau_s=tuple(taus),
+                    cost_m=cur_cost,
+                    cycle_duration_s=order_duration(tuple(current), beacons, taus, cfg.c_mps),
+                )
+    return Selection(members=members, tau_s=tuple(taus), cost_m=cost, cycle_duration_s=duration)
+
+
+def ordered_variants(combo: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Every (leader, followers in slot order) of a set: rows of indices, leader first ((k! , k))."""
+    return np.array(list(itertools.permutations(combo.tolist())), dtype=np.int64)
+
+
+def ordered_cost(
+    members: tuple[str, ...], beacons: dict[str, F64], points: F64, cfg: CoordinatorConfig, taus: list[float]
+) -> F64:
+    """(1,) full-budget cost max_p DRMS of one ordered set (leader first); inf if its schedule does not fit T_c."""
+    pos = np.array([beacons[m] for m in members], dtype=np.float64)
+    lead = np.array([0], dtype=np.int64)
+    fol = np.arange(1, len(members), dtype=np.int64)[None, :]
+    return _variant_costs(pos, points, lead, fol, cfg, np.asarray(taus, dtype=np.float64))
+
+
+def _variant_costs(
+    pos: F64, points: F64, leaders: NDArray[np.int64], followers: NDArray[np.int64], cfg: CoordinatorConfig, tau: F64
+) -> F64:
+    d = drms_full(
+        pos,
+        points,
+        leaders,
+        followers,
+        tau,
+        cfg.c_mps,
+        cfg.sigma_t_s,
+        cfg.sigma_f_s,
+        cfg.sigma_c_mps,
+        cfg.sigma_node_m,
+        cfg.sigma_dr_velocity_mps,
+    ).max(axis=1)
+    fits = schedule_fits(pos, points, leaders, followers, tau, cfg.c_mps, cfg.cycle_period_s, cfg.t_pkt_s, cfg.guard_s)
+    return np.where(fits, d, np.inf)
+
+
+def _best_ordered(
+    ids: list[str],
+    pos: F64,
+    points: F64,
+    combos: NDArray[np.int64],
+    ranked: F64,
+    cfg: CoordinatorConfig,
+    taus: list[float],
+    chunk: int = 16,
+) -> tuple[float, tuple[str, ...], float] | None:
+    """Branch and bound over sets in increasing order of their arrival-time bound; every ordered variant scored."""
+    tau = np.asarray(taus, dtype=np.float64)
+    order = np.argsort(ranked, kind="stable")
+    best: tuple[float, float, float, tuple[str, ...]] | None = None  # (cost, duration, sum r, members)
+    for start in range(0, order.size, chunk):
+        sets = order[start : start + chunk]
+        if best is not None and ranked[sets[0]] > best[0] * (1.0 + 1e-9):
+            break
+        var = np.vstack([ordered_variants(combos[i]) for i in sets])
+        costs = _variant_costs(pos, points, var[:, 0], var[:, 1:], cfg, tau)
+        for row, cost in zip(var, costs, strict=True):
+            if not math.isfinite(float(cost)) or not math.isfinite(float(ranked[sets[0]])):
+                continue
+            r = [float(np.linalg.norm(pos[j] - pos[row[0]])) for j in row[1:]]
+            dur = max(rj / cfg.c_mps + t for rj, t in zip(r, taus, strict=False))
+            members = tuple(ids[i] for i in row)
+            key = (float(cost), dur, sum(r), members)
+            if best is None or _better(key, best):
+                best = key
+    if best is None:  # every variant unusable (singular everywhere or no schedule fits): the digest's recipe
+        return None
+    return best[0], best[3], best[1]
+
+
+def _better(a: tuple[float, float, float, tuple[str, ...]], b: tuple[float, float, float, tuple[str, ...]]) -> bool:
+    """a before b: lower cost (beyond 1e-9 relative), then shorter cycle, shorter baselines, ids."""
+    if a[0] < b[0] * (1.0 - 1e-9):
+        return True
+    if a[0] > b[0] * (1.0 + 1e-9):
+        return False
+    return (round(a[1], 9), round(a[2], 6), a[3]) < (round(b[1], 9), round(b[2], 6), b[3])
+
+
+def _select_arrival_time(
+    ids: list[str],
+    pos: F64,
+    combos: NDArray[np.int64],
+    ranked: F64,
+    cost: F64,
+    current: tuple[str, ...] | None,
+    cfg: CoordinatorConfig,
+    taus: list[float],
+) -> Selection:
+    """The digest's §4.8 recipe: the set by the arrival-time GDOP, its leader by the shortest cycle."""
+    k = combos.shape[1]
     best = int(np.argmin(ranked))
     chosen = combos[best]
     if current is not None and set(current) <= set(ids) and len(current) == k:
@@ -146,16 +268,12 @@ def select(
         if math.isfinite(ranked[ci]) and not ranked[best] < (1.0 - cfg.hysteresis) * ranked[ci]:
             chosen = combos[ci]
             best = ci
-    members, duration = order_set([ids[i] for i in chosen], pos[chosen], list(cfg.tau_slots_s[:n_followers]), cfg.c_mps)
+    members, duration = order_set([ids[i] for i in chosen], pos[chosen], taus, cfg.c_mps)
     if current is not None and set(current) == set(members):
         members = tuple(current)  # keep the running order for an unchanged set
-        duration = order_duration(members, beacons, list(cfg.tau_slots_s[:n_followers]), cfg.c_mps)
-    return Selection(
-        members=members,
-        tau_s=tuple(cfg.tau_slots_s[:n_followers]),
-        cost_m=float(cost[best]),
-        cycle_duration_s=duration,
-    )
+        beacons = {ids[i]: pos[i] for i in chosen}
+        duration = order_duration(members, beacons, taus, cfg.c_mps)
+    return Selection(members=members, tau_s=tuple(taus), cost_m=float(cost[best]), cycle_duration_s=duration)
 
 
 def order_duration(members: tuple[str, ...], beacons: dict[str, F64], taus: list[float], c_mps: float) -> float:

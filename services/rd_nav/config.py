@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 
 class RdNavConfig(BaseModel):
@@ -23,6 +23,36 @@ class RdNavConfig(BaseModel):
     # ---- particle filter (§4.4) ----
     n_particles: int = Field(default=1000, ge=10, description="N [E] (§4.4 step 1; 300..2000 equivalent)")
     r0_m: float = Field(default=10.0, gt=0.0, description="initial disc radius R0, m [E]")
+    process_model: Literal["dr_errors", "paper"] = Field(
+        default="dr_errors",
+        description="dr_errors: particles (and the EKF) carry the DR error states of services/rd_nav/drift.py "
+        "(speed bias, time-driven; heading and scale errors, distance-driven) [E]; paper: the digest's white "
+        "q = q_rel*path + q_abs per q_step_s (+ q_drift_mps) [E, §4.4]",
+    )
+    # ---- DR error model (process_model dr_errors; the digest's §5.4 sensor errors by default) ----
+    dr_speed_bias_mps: float = Field(
+        default=0.05, ge=0.0, description="speed bias (additive speed error), Gauss-Markov sigma, m/s [D §5.4]"
+    )
+    dr_speed_bias_tau_s: float = Field(default=300.0, gt=0.0, description="its correlation time, s [D §5.4]")
+    dr_heading_sigma_deg: float = Field(default=2.0, ge=0.0, description="heading error Gauss-Markov sigma, deg [D]")
+    dr_heading_tau_s: float = Field(default=300.0, gt=0.0, description="its correlation time, s [D §5.4]")
+    dr_speed_scale: float = Field(
+        default=0.0, ge=0.0, description="speed scale-factor error Gauss-Markov sigma (fraction of the speed) [E]"
+    )
+    dr_speed_scale_tau_s: float = Field(default=300.0, gt=0.0, description="its correlation time, s [E]")
+    dr_speed_white_mps: float = Field(default=0.02, ge=0.0, description="white speed noise per sample, m/s [D]")
+    dr_heading_white_deg: float = Field(default=0.5, ge=0.0, description="white heading noise per sample, deg [D]")
+    dr_sample_period_s: float = Field(default=1.0, gt=0.0, description="DVL/heading sample period, s [D]")
+    dr_floor_m: float = Field(
+        default=0.1, ge=0.0, description="isotropic model floor per dr_floor_path_m of path (turns, speed steps), m [E]"
+    )
+    dr_floor_path_m: float = Field(default=15.0, gt=0.0, description="path the floor refers to (one REF cycle), m [E]")
+    predict_lag_s: float = Field(
+        default=40.0,
+        gt=0.0,
+        description="dr_errors: without cycles, the filter is predicted up to this long before the latest sensor "
+        "time (long gaps stay within the DR buffer) [E]",
+    )
     q_rel: float = Field(default=0.07, ge=0.0, description="process noise per step, fraction of DR path [E]")
     q_abs_m: float = Field(default=0.3, ge=0.0, description="process noise per step, absolute, m [E]")
     q_step_s: float = Field(default=10.0, gt=0.0, description="time step the q figures refer to (one REF cycle), s [E]")
@@ -43,6 +73,18 @@ class RdNavConfig(BaseModel):
         default=1.5, ge=0.0, description="extra diffusion per second while DR is invalid (frozen), m/s [E]"
     )
     roughening_m: float = Field(default=0.1, ge=0.0, description="roughening jitter after resampling, m [E]")
+    degenerate_neff_fraction: float = Field(
+        default=0.02,
+        ge=0.0,
+        lt=1.0,
+        description="after an update leaving N_eff below this fraction of N, positions are redrawn from the "
+        "Gaussian posterior of the prior cloud's moments and the linearised cycle (0: never) [E]",
+    )
+    roughening_shrink: bool = Field(
+        default=True,
+        description="shrink the resampled cloud towards its mean as the jitter spreads it (covariance kept, Liu & "
+        "West); false: the digest's plain jitter, which widens the cloud by 0.1 m at every resampling [E]",
+    )
     resample_fraction: float = Field(default=0.5, gt=0.0, le=1.0, description="resample when N_eff < f*N [E]")
     epsilon: float = Field(default=0.05, ge=0.0, lt=1.0, description="robust outlier weight eps [E]")
     outlier_m2: float = Field(default=25.0, gt=0.0, description="outlier floor exp(-m2/2) in the mixture [E]")
@@ -75,8 +117,21 @@ class RdNavConfig(BaseModel):
     # ---- gating and re-initialisation (§4.4 step 8) ----
     gating: bool = Field(default=True, description="NIS gate at chi2_{M,gate_probability} [E]")
     gate_probability: float = Field(default=0.999, gt=0.0, lt=1.0)
+    gate_after_updates: int = Field(
+        default=4,
+        ge=0,
+        description="no NIS gate (and no late-arrival test) until this many complete cycles have updated the filter "
+        "since its start or re-seed: the first updates from the R0 disc leave a handful of particles, whose spread "
+        "judges an innovation poorly (the robust likelihood still bounds an outlier's pull) [E]",
+    )
     drop_single_outlier: bool = Field(
         default=True, description="use a gated-out cycle without one late follower if the rest passes [E]"
+    )
+    outlier_only_if_gated: bool = Field(
+        default=True,
+        description="look for one late arrival only in a cycle the NIS gate rejects; false: also in a cycle inside "
+        "the gate whose residual alone fails chi2_1 along one arrival (with M = 2 a position error looks the same: "
+        "in fault-free runs a 3-sigma excursion was then taken for a late leader and the lock lost) [E]",
     )
     reinit: bool = Field(default=True, description="snapshot re-initialisation after K rejections [E]")
     reinit_k: int = Field(default=3, ge=1, description="K consecutive gated-out cycles [E]")
@@ -146,3 +201,9 @@ class RdNavConfig(BaseModel):
     init_from_snapshots: bool = Field(
         default=True, description="without a start position, initialise from K consistent snapshots [E]"
     )
+
+    @model_validator(mode="after")
+    def _lag(self) -> RdNavConfig:
+        if self.predict_lag_s + self.max_cycle_span_s >= self.dr_buffer_s:
+            raise ValueError("predict_lag_s + max_cycle_span_s must be shorter than dr_buffer_s")
+        return self

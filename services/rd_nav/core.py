@@ -47,10 +47,12 @@ from shared.errors import InputRejected
 from .assembler import CycleAssembler, OpenCycle
 from .config import RdNavConfig
 from .dr import DeadReckoner, DrPoint
+from .drift import J90, DriftModel, gm_path_var
 from .ekf import EkfShadow
 from .geometry import (
     F64,
     crlb,
+    follower_units,
     gauss_newton,
     in_window,
     jacobian_d,
@@ -77,6 +79,8 @@ class CycleData:
     d: F64  # (M,)
     s: F64  # (M,)
     delta: F64  # (M, 2)
+    G: F64  # (M, 2, 3) how the DR error states move delta_j (drift.py), zeros without motion compensation
+    iv: F64  # (M,) variance of the trapezoid's error over each delta_j (velocity changes), m^2
     dt: F64  # (M,) receiver-clock time from the leader arrival, s
     tau: F64
     pos_sigma: F64  # (M+1,) leader first
@@ -122,6 +126,21 @@ class RdNavCore:
         self.starter = Reinitialiser(
             cfg.reinit_k, cfg.reinit_consistency_m, math.inf, cfg.reinit_crlb_scale, cfg.reinit_extra_var_m2
         )
+        self.drift: DriftModel | None = None
+        if cfg.process_model == "dr_errors":
+            self.drift = DriftModel(
+                bias_mps=cfg.dr_speed_bias_mps,
+                bias_tau_s=cfg.dr_speed_bias_tau_s,
+                heading_rad=math.radians(cfg.dr_heading_sigma_deg),
+                heading_tau_s=cfg.dr_heading_tau_s,
+                scale=cfg.dr_speed_scale,
+                scale_tau_s=cfg.dr_speed_scale_tau_s,
+                speed_white_mps=cfg.dr_speed_white_mps,
+                heading_white_rad=math.radians(cfg.dr_heading_white_deg),
+                sample_period_s=cfg.dr_sample_period_s,
+                floor_m=cfg.dr_floor_m,
+                floor_path_m=cfg.dr_floor_path_m,
+            )
         self.gates = {m: float(chi2.ppf(cfg.gate_probability, m)) for m in range(1, 17)}
         self.gates_typical = {m: float(chi2.ppf(0.95, m)) for m in range(1, 17)}
         self.counts: Counter[str] = Counter()  # rejected inputs and rejected cycles by reason
@@ -135,6 +154,7 @@ class RdNavCore:
         self.dr_state: DrPoint | None = None
         self.t_last_update: float | None = None
         self.t_last_fix: float | None = None  # last full (M >= 2) update, re-seed or start: the DR drift grows from it
+        self.updates_since_seed = 0  # complete cycles used since the start or the last re-seed
         self.status = "INIT"
         self.reinit_count = 0
         self.snapshot_starts = 0
@@ -256,6 +276,9 @@ class RdNavCore:
                 raise InputRejected("no_start_position", "DEPARTED without position or known node")
             if not np.isfinite(pos).all():
                 raise InputRejected("non_finite", "start position is not finite")
+            last = self.dr.last_t
+            if last is not None and t < last:
+                raise InputRejected("stamp_backwards", f"DEPARTED at {t:.9f} s precedes DR data at {last:.9f} s")
             self.docked = False
             self._start(t, pos[:2])
         return []
@@ -263,13 +286,14 @@ class RdNavCore:
     def _start(self, t: float, center: F64) -> None:
         """Initialise the cloud uniformly in a disc of radius R0 around the dock (§4.4 step 1)."""
         self.dr.advance_to(t)
-        self.pf.init_disc(center, self.cfg.r0_m)
-        self.ekf.init(center, (self.cfg.r0_m**2 / 4.0) * np.eye(2))
+        self.pf.init_disc(center, self.cfg.r0_m, self._error_cov())
+        self.ekf.init(center, (self.cfg.r0_m**2 / 4.0) * np.eye(2), self._error_cov())
         self.initialised = True
         self.t_state = t
         self.dr_state = self.dr.at(t)
         self.t_last_update = None
         self.t_last_fix = t  # the start disc holds the first cycle's worth of drift
+        self.updates_since_seed = 0
         self.status = "INIT"
         self.reinit.clear()
 
@@ -290,6 +314,14 @@ class RdNavCore:
         out: list[Message] = []
         for oc in sorted(self.asm.close_due(t), key=lambda c: c.leader.t_data_s):
             out += self._process_cycle(oc)
+        lag = self.cfg.predict_lag_s
+        if (
+            self.drift is not None
+            and self.initialised
+            and not self.docked
+            and t - self.t_state > lag + self.cfg.q_step_s
+        ):
+            self._predict_to(t - lag)  # a long gap without cycles: keep the prediction steps on the DR buffer
         period = self.cfg.propagated_fix_period_s
         if period > 0.0 and self.initialised and not self.docked and t - self._last_prop_t >= period:
             fix = self._propagated_fix(t)
@@ -324,6 +356,8 @@ class RdNavCore:
         d: list[float] = []
         s_list: list[float] = []
         dl: list[tuple[float, float]] = []
+        gl: list[F64] = []
+        ivl: list[float] = []
         dts: list[float] = []
         taus: list[float] = []
         sig: list[float] = [L.pos_sigma_m]
@@ -335,6 +369,8 @@ class RdNavCore:
             flag: str | None = None
             s = d_j = math.nan
             delta = (0.0, 0.0)
+            Gj = np.zeros((2, 3))
+            iv_j = 0.0
             if tau is None:
                 flag = "NO_TAU"
             else:
@@ -343,7 +379,11 @@ class RdNavCore:
                 if not bool(in_window(np.array([s]), np.array([r1j]), cfg.window_tol_m)[0]):
                     flag = "WINDOW_REJECT"
             if flag is None and cfg.motion_compensation and dr_ok:
-                delta = self.dr.displacement(t1, t1 + dT)
+                pa, pb = self.dr.at(t1), self.dr.at(t1 + dT)
+                delta = (pb.x_m - pa.x_m, pb.y_m - pa.y_m)
+                dXj = np.array(delta)
+                Gj = np.column_stack([[pb.un_s - pa.un_s, pb.ue_s - pa.ue_s], J90 @ dXj, dXj])
+                iv_j = pb.interp_var_m2 - pa.interp_var_m2
             valid = flag is None and rx.epoch == oc.epoch
             if flag is not None:
                 flags.append(f"{flag}:{fid}")
@@ -368,6 +408,8 @@ class RdNavCore:
                 d.append(d_j)
                 s_list.append(s)
                 dl.append(delta)
+                gl.append(Gj)
+                ivl.append(iv_j)
                 dts.append(dT)
                 taus.append(float(tau))  # type: ignore[arg-type]
                 sig.append(rx.pos_sigma_m)
@@ -413,6 +455,8 @@ class RdNavCore:
             d=np.array(d, dtype=np.float64),
             s=np.array(s_list, dtype=np.float64),
             delta=np.array(dl, dtype=np.float64).reshape(-1, 2),
+            G=np.array(gl, dtype=np.float64).reshape(-1, 2, 3),
+            iv=np.array(ivl, dtype=np.float64),
             dt=np.array(dts, dtype=np.float64),
             tau=np.array(taus, dtype=np.float64),
             pos_sigma=np.array(sig, dtype=np.float64),
@@ -434,7 +478,20 @@ class RdNavCore:
         if np.any(sig > 0.0):
             zj = np.full(M, cd.depth)
             node = node_cov_term(at, cd.depth, zj, cd.delta, cd.leader, cd.followers, float(sig[0]), sig[1:])
-        if cfg.motion_compensation and cfg.sigma_dr_velocity_mps > 0.0:
+        if cfg.motion_compensation and self.drift is not None:
+            # the DR error states are in the filter (each particle compensates with its own): only the white DR
+            # noise of the intra-cycle displacements remains, shared by two followers over the shorter one
+            zj = np.full(M, cd.depth)
+            u = follower_units(at, zj, cd.delta, cd.followers)
+            mc: F64 = np.zeros((M, M))
+            for j in range(M):
+                for k in range(j, M):
+                    i = j if cd.dt[j] <= cd.dt[k] else k
+                    C = self.drift.white_cov(float(cd.dt[i]), cd.delta[i], cd.G[i][:, 0])
+                    C = C + 0.5 * float(cd.iv[i]) * np.eye(2)
+                    mc[j, k] = mc[k, j] = float(u[j] @ C @ u[k])
+            node = mc if node is None else node + mc
+        elif cfg.motion_compensation and cfg.sigma_dr_velocity_mps > 0.0:
             zj = np.full(M, cd.depth)
             mc = motion_comp_cov(at, zj, cd.delta, cd.followers, cd.dt, cfg.sigma_dr_velocity_mps)
             node = mc if node is None else node + mc
@@ -457,6 +514,16 @@ class RdNavCore:
         x_hat, Q = self.pf.estimate()
         M = cd.d.size
         zj = np.full(M, cd.depth)
+        G: F64 | None = None  # DR error states -> motion compensation (process_model dr_errors)
+        C_joint: F64 | None = None
+        z_mean: F64 | None = None
+        Hz: F64 | None = None
+        gauss: tuple[F64, F64, F64, F64, F64] | None = None
+        raw_delta = cd.delta
+        if self.drift is not None and M > 0 and cfg.motion_compensation:
+            G = cd.G
+            z_mean, C_joint = self.pf.joint_estimate()
+            cd = replace(cd, delta=cd.delta - np.einsum("mij,j->mi", G, z_mean[2:]))
         reject = cd.reject
         nis: float | None = None
         resid: list[float] = []
@@ -470,7 +537,11 @@ class RdNavCore:
             xr = x_hat.reshape(1, 2)
             e = cd.d - predict_d(xr, cd.leader, cd.followers, cd.delta, cd.depth, zj)[0]
             H = jacobian_d(xr, cd.leader, cd.followers, cd.delta, cd.depth, zj)[0]
-            S = H @ Q @ H.T + R
+            if G is not None and C_joint is not None:  # h also depends on the DR errors through delta_j
+                Hz = np.hstack([H, -np.einsum("mi,mij->mj", H, G)])
+                S = Hz @ C_joint @ Hz.T + R
+            else:
+                S = H @ Q @ H.T + R
             S = 0.5 * (S + S.T)
             nis = nis_full = float(e @ np.linalg.solve(S, e))
             resid = e.tolist()
@@ -485,21 +556,42 @@ class RdNavCore:
             rescued = False
             if not math.isfinite(nis):
                 reject = "NON_FINITE_INNOVATION"
+            elif cfg.gating and self.updates_since_seed < cfg.gate_after_updates:
+                flags.append("UNGATED")  # converging from the start disc or a re-seed: the cloud is no judge yet
             elif cfg.gating:
-                late = self._one_late_arrival(e, S, cd.ids) if cfg.drop_single_outlier and M >= 2 else None
+                gated = nis > self.gates[min(M, 16)]
+                rescue = cfg.drop_single_outlier and M >= 2 and (gated or not cfg.outlier_only_if_gated)
+                late = self._one_late_arrival(e, S, cd.ids) if rescue else None
                 if late is not None and late[0] == self._last_dropped:
                     late = None  # multipath is random: the same arrival late twice in a row points at the filter
                 if late is not None:
                     dropped, T, nis = late
                     rescued = True
                     flags.append(f"OUTLIER:{dropped}")
-                elif nis > self.gates[min(M, 16)]:
+                elif gated:
                     reject = "NIS_GATE"
             if reject is None:
                 prior_w = self.pf.w
-                Rinv = np.linalg.inv(R if T is None else T @ R @ T.T)
+                if T is None:  # the cloud's moments and this cycle's linearisation, for a degenerate update
+                    joint = Hz is not None and C_joint is not None and z_mean is not None
+                    gauss = (z_mean, C_joint, Hz, e, S) if joint else (x_hat, Q, H, e, S)  # type: ignore[assignment]
+                Rw = R
+                if G is not None:  # each particle compensates with its mean DR errors; their shared spread adds to R
+                    He = -np.einsum("mi,mij->mj", H, G)
+                    Rw = R + He @ self.pf.PE @ He.T
+                Rinv = np.linalg.inv(Rw if T is None else T @ Rw @ T.T)
                 ok, m2_min = self.pf.weight(
-                    cd.d, Rinv, cd.leader, cd.followers, cd.delta, cd.depth, zj, cfg.epsilon, cfg.outlier_m2, T
+                    cd.d,
+                    Rinv,
+                    cd.leader,
+                    cd.followers,
+                    raw_delta if G is not None else cd.delta,
+                    cd.depth,
+                    zj,
+                    cfg.epsilon,
+                    cfg.outlier_m2,
+                    T,
+                    G,
                 )
                 if not ok:
                     reject = "WEIGHT_FAILURE"
@@ -508,6 +600,8 @@ class RdNavCore:
                     reject = "NO_OVERLAP"
             if reject is None:
                 self.t_last_update = cd.t1
+                if M >= 2:
+                    self.updates_since_seed += 1
                 if M >= 2 and not (cfg.q_drift_weak_geometry and "DEGRADED_GEOMETRY" in flags):
                     self.t_last_fix = cd.t1
                 event = "USED"
@@ -523,26 +617,29 @@ class RdNavCore:
                 self.reinit.record(self._snapshot(cd, x_hat, R) if M >= 2 else None, tag)
                 prop = self.reinit.propose(x_hat)
                 if prop is not None:
-                    self.pf.init_gaussian(prop.mean, prop.cov)
+                    self.pf.init_gaussian(prop.mean, prop.cov, self._error_cov())
                     if cfg.ekf_reseed_on_pf_reinit:
-                        self.ekf.init(prop.mean, prop.cov)
+                        self.ekf.init(prop.mean, prop.cov, self._error_cov())
                     self.reinit_count += 1
                     self.reinit.clear()
                     self.t_last_update = self.t_last_fix = cd.t1
+                    self.updates_since_seed = 0
                     event = "REINIT"
                     flags.append("REINIT")
-            # EKF shadow: same inputs, its own gate
+            # EKF shadow: same inputs, its own gate (from the same update on as the PF's)
             if cfg.ekf_shadow and self.ekf.initialised:
+                converging = self.updates_since_seed <= cfg.gate_after_updates and "UNGATED" in flags
                 Re = self.measurement_cov(cd, self.ekf.x)
                 ekf_res = self.ekf.update(
                     cd.d,
                     Re,
                     cd.leader,
                     cd.followers,
-                    cd.delta,
+                    raw_delta if G is not None else cd.delta,
                     cd.depth,
                     zj,
-                    self.gates[min(M, 16)] if cfg.gating else None,
+                    self.gates[min(M, 16)] if cfg.gating and not converging else None,
+                    G,
                 )
                 ekf_state = ("USED" if ekf_res.accepted else "REJECTED", ekf_res.nis, ekf_res.residual_m.tolist())
         else:
@@ -551,6 +648,9 @@ class RdNavCore:
             self.counts[f"cycle_{reject}"] += 1
         if cd.reject is None:
             self._last_dropped = dropped if event == "USED" else None
+        if event == "USED" and gauss is not None and self.pf.n_eff() < cfg.degenerate_neff_fraction * cfg.n_particles:
+            self._regenerate(*gauss)  # too few particles carry the posterior (e.g. the first cycle after the R0 disc)
+            flags.append("REGENERATED")
         # estimate (Eq. 6-7) before regeneration, then regenerate (§4.4 steps 6-7)
         x_hat, Q = self.pf.estimate()
         if cfg.estimate == "map" and event == "USED":
@@ -559,9 +659,11 @@ class RdNavCore:
                 x_hat = m
         n_eff = self.pf.n_eff()
         if event == "USED" and n_eff < cfg.resample_fraction * cfg.n_particles:
-            self.pf.resample(cfg.roughening_m)
+            self.pf.resample(cfg.roughening_m, cfg.roughening_shrink)
         if not self.pf.finite():  # never expected; keep the state valid if it happens
-            self.pf.init_gaussian(x_hat if np.isfinite(x_hat).all() else self.ekf.x, np.eye(2) * 100.0)
+            self.pf.init_gaussian(
+                x_hat if np.isfinite(x_hat).all() else self.ekf.x, np.eye(2) * 100.0, self._error_cov()
+            )
             flags.append("PF_RESET")
         status = self._status(cd.t1, event, reject, flags)
         self.status = status
@@ -619,6 +721,26 @@ class RdNavCore:
                 if fix is not None:
                     out.append(fix)
         return out
+
+    def _regenerate(self, z: F64, C: F64, H: F64, e: F64, S: F64) -> None:
+        """Resample, then draw the positions from the Gaussian posterior of the prior cloud's moments and this
+        cycle's linearised measurement: K = C H^T S^-1, z+ = z + K e, C+ = C - K S K^T ([E]). A cloud much wider
+        than one cycle's likelihood (the R0 = 10 m disc against ~0.5 m) leaves a handful of particles with weight,
+        whose spread says nothing of the posterior's (nor do their few DR-error means); this keeps its covariance,
+        the DR errors' included (their mean given each drawn position, and the conditional covariance)."""
+        K = np.linalg.solve(S, H @ C).T
+        zp = z + K @ e
+        Cp = C - K @ S @ K.T
+        Pxx = 0.5 * (Cp[:2, :2] + Cp[:2, :2].T)
+        if not (np.isfinite(zp).all() and np.isfinite(Pxx).all()) or np.linalg.eigvalsh(Pxx).min() <= 0.0:
+            return
+        self.pf.resample(0.0)
+        self.pf.X = zp[:2][None, :] + self.rng.standard_normal(self.pf.X.shape) @ np.linalg.cholesky(Pxx).T
+        if zp.size > 2:  # DR errors: their mean given each position, and the conditional covariance (shared)
+            B = np.linalg.solve(Pxx, Cp[:2, 2:]).T  # C_ex C_xx^-1
+            self.pf.E = zp[2:][None, :] + (self.pf.X - zp[:2][None, :]) @ B.T
+            PE = Cp[2:, 2:] - B @ Cp[:2, 2:]
+            self.pf.PE = 0.5 * (PE + PE.T)
 
     def _one_late_arrival(
         self, e: F64, S: F64, ids: list[str], rest_gates: dict[int, float] | None = None, min_delay_m: float = 0.0
@@ -688,12 +810,15 @@ class RdNavCore:
             ta = max(a.t_s - self.t_last_fix, T)
             tb = max(b.t_s - self.t_last_fix, T)
             var += cfg.q_drift_mps**2 * max(
-                _gm_path_var(tb, cfg.q_drift_tau_s) - _gm_path_var(ta, cfg.q_drift_tau_s), 0.0
+                gm_path_var(tb, cfg.q_drift_tau_s) - gm_path_var(ta, cfg.q_drift_tau_s), 0.0
             )
         return var
 
     def _predict_to(self, t: float) -> None:
         if t <= self.t_state or self.dr_state is None:
+            return
+        if self.drift is not None:
+            self._predict_drift_to(t)
             return
         b = self.dr.at(t)
         a = self.dr_state
@@ -704,6 +829,34 @@ class RdNavCore:
             self.ekf.predict(dX, var)
         self.t_state = t
         self.dr_state = b
+
+    def _predict_drift_to(self, t: float) -> None:
+        """Prediction with the DR error model (drift.py) in steps of at most q_step_s on the DR buffer's knots."""
+        assert self.drift is not None and self.dr_state is not None
+        cfg = self.cfg
+        a = self.dr_state
+        n = max(1, round((t - a.t_s) / cfg.q_step_s))
+        for k in range(1, n + 1):
+            tk = t if k == n else a.t_s + (t - a.t_s) * k / n
+            if k < n and not self.dr.covers(tk):
+                continue  # older than the buffer: one longer step
+            b = self.dr.at(tk)
+            dX = np.array([b.x_m - a.x_m, b.y_m - a.y_m])
+            U = np.array([b.un_s - a.un_s, b.ue_s - a.ue_s])
+            step = self.drift.step(b.t_s - a.t_s, dX, U)
+            inv = b.invalid_s - a.invalid_s
+            extra = (cfg.q_dr_invalid_mps * inv) ** 2 + 0.5 * (b.interp_var_m2 - a.interp_var_m2)  # per axis
+            if extra > 0.0:  # DR frozen (§7.4 DVL dropout); velocity changes the trapezoid smooths over
+                step = replace(step, Q_white=step.Q_white + extra * np.eye(2))
+            self.pf.predict_drift(dX, step)
+            if self.ekf.initialised:
+                self.ekf.predict_drift(dX, step)
+            a = b
+        self.t_state = t
+        self.dr_state = a
+
+    def _error_cov(self) -> F64 | None:
+        return None if self.drift is None else self.drift.prior_cov()
 
     def _snapshot(self, cd: CycleData, x_hat: F64, R: F64) -> Snapshot | None:
         """Snapshot Gauss-Newton fix of one cycle (§4.5), the solution nearest x_hat."""
@@ -758,12 +911,13 @@ class RdNavCore:
         prop = self.starter.propose(None)
         if prop is None:
             return
-        self.pf.init_gaussian(prop.mean, prop.cov)
-        self.ekf.init(prop.mean, prop.cov)
+        self.pf.init_gaussian(prop.mean, prop.cov, self._error_cov())
+        self.ekf.init(prop.mean, prop.cov, self._error_cov())
         self.initialised = True
         self.t_state = cd.t1
         self.dr_state = b
         self.t_last_update = self.t_last_fix = cd.t1
+        self.updates_since_seed = 0
         self.status = "INIT"
         self.snapshot_starts += 1
         self.starter.clear()
@@ -775,9 +929,20 @@ class RdNavCore:
         self._last_prop_t = t
         b = self.dr.at(t)
         a = self.dr_state
-        x_hat, Q = self.pf.estimate()
-        x = x_hat + np.array([b.x_m - a.x_m, b.y_m - a.y_m])
-        Qp = Q + self._growth(a, b) * np.eye(2)
+        dX = np.array([b.x_m - a.x_m, b.y_m - a.y_m])
+        if self.drift is None:
+            x_hat, Q = self.pf.estimate()
+            x = x_hat + dX
+            Qp = Q + self._growth(a, b) * np.eye(2)
+        else:  # the cloud carried by DR with each particle's errors, plus the step's noise
+            step = self.drift.step(b.t_s - a.t_s, dX, np.array([b.un_s - a.un_s, b.ue_s - a.ue_s]))
+            Gp, Qv = self.pf.step_maps(step)
+            Xp = self.pf.predicted(dX, Gp)
+            x = self.pf.w @ Xp
+            D = Xp - x[None, :]
+            Qp = (D.T * self.pf.w) @ D + Gp @ self.pf.PE @ Gp.T + Qv
+            inv = b.invalid_s - a.invalid_s
+            Qp = Qp + ((self.cfg.q_dr_invalid_mps * inv) ** 2 + 0.5 * (b.interp_var_m2 - a.interp_var_m2)) * np.eye(2)
         if not self.dr.valid_at(t):
             status = "LOST"
         elif self.t_last_update is not None and self._cycles_since_update(t) >= self.cfg.dr_only_after_cycles:
@@ -847,12 +1012,3 @@ class RdNavCore:
             cycles_since_update=self._cycles_since_update(t),
             flags=sorted(set(flags))[:32],
         )
-
-
-def _gm_path_var(dt: float, tau: float) -> float:
-    """Variance of the path integral of a unit-variance Gauss-Markov velocity error over dt (correlation time tau),
-    s^2: 2 tau^2 (dt/tau - 1 + exp(-dt/tau)); about dt^2 for dt << tau, 2 tau dt for dt >> tau."""
-    x = dt / tau
-    if x < 1e-4:
-        return dt * dt
-    return 2.0 * tau * tau * (x - 1.0 + math.exp(-x))

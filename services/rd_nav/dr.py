@@ -11,6 +11,13 @@ knot the velocity is held.
 Times are seconds on the data clock (``header.stamp_ns``). Validity: a DVL sample without bottom lock is
 not a valid velocity; the last valid one is held for ``dvl_hold_s`` (heading: ``heading_hold_s``), after
 which DR is invalid and the position is frozen while ``invalid_s`` (cumulative invalid time) grows.
+
+Besides the position, every knot carries U = integral of the horizontal forward unit vector
+(cos(psi) cos(theta), sin(psi) cos(theta)) over the valid DR time (``un_s``, ``ue_s``): the displacement error a
+constant DVL speed bias b causes over an interval is b (U_b - U_a), whether the vehicle moves or hovers
+(:mod:`services.rd_nav.drift`), and the variance of what the trapezoid misses where the velocity changes
+(``interp_var_m2``): a step Δv at an unknown instant within a sample interval Δt leaves (u - 1/2) Δv Δt with u
+uniform, variance |Δv|² Δt² / 12 per interval (turns, speed changes, stops and starts).
 """
 
 from __future__ import annotations
@@ -30,6 +37,9 @@ class DrPoint:
     y_m: float  # east
     path_m: float  # cumulative horizontal path length
     invalid_s: float  # cumulative time with DR invalid
+    un_s: float = 0.0  # cumulative time integral of the horizontal forward (heading) unit vector, north, s
+    ue_s: float = 0.0  # ... east, s (U of the DR error model: a speed bias b moves DR by b U)
+    interp_var_m2: float = 0.0  # cumulative variance of the trapezoid's error at velocity changes, m^2
 
 
 def body_to_ned_horizontal(
@@ -64,6 +74,11 @@ class DeadReckoner:
         self._y: list[float] = []
         self._path: list[float] = []
         self._inv: list[float] = []
+        self._un: list[float] = []
+        self._ue: list[float] = []
+        self._iv: list[float] = []
+        self._fn: list[float] = []  # horizontal forward unit vector at the knot
+        self._fe: list[float] = []
         self._vn: list[float] = []
         self._ve: list[float] = []
         self._until: list[float] = []
@@ -98,7 +113,7 @@ class DeadReckoner:
     def advance_to(self, t: float) -> None:
         """Make sure a knot exists at t (t must not precede the last knot)."""
         if not self._t:
-            self._append(t, 0.0, 0.0, 0.0, 0.0)
+            self._append(t, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
             self._refresh_last()
             return
         t0 = self._t[-1]
@@ -106,23 +121,41 @@ class DeadReckoner:
             raise ValueError(f"DR sample at {t} s precedes the last one at {t0} s")
         if t == t0:
             return
-        x, y, path, inv = self._segment(len(self._t) - 1, t, None)
-        self._append(t, x, y, path, inv)
+        self._append(t, *self._segment(len(self._t) - 1, t, None))
         self._refresh_last()
         cut = t - self.buffer_s
         if len(self._t) > 4 and self._t[1] < cut:
             k = bisect.bisect_left(self._t, cut) - 1
             if k > 0:
-                for a in (self._t, self._x, self._y, self._path, self._inv, self._vn, self._ve, self._until):
+                for a in (
+                    self._t,
+                    self._x,
+                    self._y,
+                    self._path,
+                    self._inv,
+                    self._un,
+                    self._ue,
+                    self._iv,
+                    self._fn,
+                    self._fe,
+                    self._vn,
+                    self._ve,
+                    self._until,
+                ):
                     del a[:k]
 
     # ----- internals --------------------------------------------------------------------------
-    def _append(self, t: float, x: float, y: float, path: float, inv: float) -> None:
+    def _append(self, t: float, x: float, y: float, path: float, inv: float, un: float, ue: float) -> None:
         self._t.append(t)
         self._x.append(x)
         self._y.append(y)
         self._path.append(path)
         self._inv.append(inv)
+        self._un.append(un)
+        self._ue.append(ue)
+        self._iv.append(self._iv[-1] if self._iv else 0.0)
+        self._fn.append(0.0)
+        self._fe.append(0.0)
         self._vn.append(0.0)
         self._ve.append(0.0)
         self._until.append(-math.inf)
@@ -132,32 +165,46 @@ class DeadReckoner:
         k = len(self._t) - 1
         if self._vel_body is not None and self._att is not None:
             self._vn[k], self._ve[k] = body_to_ned_horizontal(*self._vel_body, *self._att)
+            self._fn[k], self._fe[k] = body_to_ned_horizontal(1.0, 0.0, 0.0, *self._att)
             self._until[k] = min(self._t_vel + self.dvl_hold_s, self._t_att + self.heading_hold_s)
         else:
             self._vn[k], self._ve[k], self._until[k] = 0.0, 0.0, -math.inf
+            self._fn[k], self._fe[k] = 0.0, 0.0
         if k > 0 and self.linear:
-            self._x[k], self._y[k], self._path[k], self._inv[k] = self._segment(k - 1, self._t[k], k)
+            seg = self._segment(k - 1, self._t[k], k)
+            self._x[k], self._y[k], self._path[k], self._inv[k], self._un[k], self._ue[k] = seg
+            dt = self._t[k] - self._t[k - 1]
+            both = self._until[k - 1] >= self._t[k] and self._until[k] >= self._t[k]
+            dv2 = (self._vn[k] - self._vn[k - 1]) ** 2 + (self._ve[k] - self._ve[k - 1]) ** 2 if both else 0.0
+            self._iv[k] = self._iv[k - 1] + dv2 * dt * dt / 12.0
 
-    def _segment(self, a: int, t: float, b: int | None) -> tuple[float, float, float, float]:
+    def _segment(self, a: int, t: float, b: int | None) -> tuple[float, float, float, float, float, float]:
         """State at time t >= t_a integrated from knot a (trapezoid to knot b if given and valid)."""
         ta = self._t[a]
         x, y, path, inv = self._x[a], self._y[a], self._path[a], self._inv[a]
+        un, ue = self._un[a], self._ue[a]
         dt = t - ta
         if dt <= 0.0:
-            return x, y, path, inv
+            return x, y, path, inv, un, ue
         va = (self._vn[a], self._ve[a])
+        fa = (self._fn[a], self._fe[a])
         if b is not None and self._until[a] >= t and self._until[b] >= t:
             vb = (self._vn[b], self._ve[b])
+            fb = (self._fn[b], self._fe[b])
             x += 0.5 * (va[0] + vb[0]) * dt
             y += 0.5 * (va[1] + vb[1]) * dt
             path += 0.5 * (math.hypot(*va) + math.hypot(*vb)) * dt
-            return x, y, path, inv
+            un += 0.5 * (fa[0] + fb[0]) * dt
+            ue += 0.5 * (fa[1] + fb[1]) * dt
+            return x, y, path, inv, un, ue
         dt_valid = min(max(self._until[a] - ta, 0.0), dt)
         if dt_valid > 0.0:
             x += va[0] * dt_valid
             y += va[1] * dt_valid
             path += math.hypot(*va) * dt_valid
-        return x, y, path, inv + (dt - dt_valid)
+            un += fa[0] * dt_valid
+            ue += fa[1] * dt_valid
+        return x, y, path, inv + (dt - dt_valid), un, ue
 
     # ----- queries --------------------------------------------------------------------------
     def valid_at(self, t: float) -> bool:
@@ -175,8 +222,7 @@ class DeadReckoner:
         if not self._t or t < self._t[0]:
             raise LookupError(f"DR has no data at {t} s")
         if t >= self._t[-1]:
-            x, y, path, inv = self._segment(len(self._t) - 1, t, None)
-            return DrPoint(t, x, y, path, inv)
+            return DrPoint(t, *self._segment(len(self._t) - 1, t, None), self._iv[-1])
         k = bisect.bisect_right(self._t, t)
         ta, tb = self._t[k - 1], self._t[k]
         f = (t - ta) / (tb - ta) if tb > ta else 0.0
@@ -184,7 +230,16 @@ class DeadReckoner:
         def lerp(a: list[float]) -> float:
             return a[k - 1] + f * (a[k] - a[k - 1])
 
-        return DrPoint(t, lerp(self._x), lerp(self._y), lerp(self._path), lerp(self._inv))
+        return DrPoint(
+            t,
+            lerp(self._x),
+            lerp(self._y),
+            lerp(self._path),
+            lerp(self._inv),
+            lerp(self._un),
+            lerp(self._ue),
+            lerp(self._iv),
+        )
 
     def displacement(self, t_a: float, t_b: float) -> tuple[float, float]:
         """Delta X between two data times, Eq. (4), m (north, east)."""

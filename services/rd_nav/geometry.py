@@ -33,11 +33,13 @@ def leader_follower_ranges(leader: F64, followers: F64) -> F64:
 
 
 def predict_d(P: F64, leader: F64, followers: F64, delta: F64, z1: float, zj: F64) -> F64:
-    """h_j(p) for every row of P (N, 2) -> (N, M), metres (vectorised over particles)."""
+    """h_j(p) for every row of P (N, 2) -> (N, M), metres (vectorised over particles).
+
+    ``delta`` is (M, 2), or (N, M, 2) for a motion compensation of each particle's own."""
     dz1 = z1 - leader[2]
     rho1 = np.sqrt((P[:, 0] - leader[0]) ** 2 + (P[:, 1] - leader[1]) ** 2 + dz1 * dz1)
-    qx = P[:, 0:1] + (delta[:, 0] - followers[:, 0])[None, :]
-    qy = P[:, 1:2] + (delta[:, 1] - followers[:, 1])[None, :]
+    qx = P[:, 0:1] + (delta[..., 0] - followers[:, 0])
+    qy = P[:, 1:2] + (delta[..., 1] - followers[:, 1])
     dzj = (zj - followers[:, 2])[None, :]
     rhoj = np.sqrt(qx * qx + qy * qy + dzj * dzj)
     return rhoj - rho1[:, None]
@@ -123,6 +125,14 @@ def motion_comp_cov(p: F64, zj: F64, delta: F64, followers: F64, dt_s: F64, sigm
     u = v[:, :2] / np.linalg.norm(v, axis=1)[:, None]
     g = u * dt_s[:, None]
     return sigma_v_mps**2 * (g @ g.T)
+
+
+def follower_units(p: F64, zj: F64, delta: F64, followers: F64) -> F64:
+    """Horizontal part of the unit vectors follower j -> receiver at its arrival (p + delta_j), (M, 2)."""
+    v = np.column_stack(
+        [p[0] + delta[:, 0] - followers[:, 0], p[1] + delta[:, 1] - followers[:, 1], zj - followers[:, 2]]
+    )
+    return v[:, :2] / np.linalg.norm(v, axis=1)[:, None]
 
 
 def fisher(H: F64, R: F64) -> F64:

@@ -26,7 +26,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from schemas import Message, Truth
-from schemas.rd_nav import RdNavFix, TdoaCycle, VehicleStatus
+from schemas.rd_nav import BeaconAssignment, RdNavFix, TdoaCycle, VehicleStatus
 from services.player.scenario import Scenario
 from services.player.simulators import Event
 from shared import keys
@@ -34,6 +34,7 @@ from shared.errors import InputRejected
 from shared.mc_params import check_config_overrides
 from shared.truth import linear_at, truths_of
 
+from . import consistency
 from .config import RdNavConfig
 from .core import RdNavCore
 from .metrics import aggregate as aggregate_runs
@@ -52,6 +53,9 @@ class Params(BaseModel):
     vehicle: str | None = Field(default=None, description="the AUV scored; None: the group's only moving AUV")
     config: dict[str, Any] = Field(default_factory=dict, description="RdNavConfig overrides")
     skip_first_cycles: int = Field(default=3, ge=0, description="cycle fixes not scored after each departure")
+    regime_window_s: float = Field(
+        default=30.0, gt=0.0, description="a fix is in a manoeuvre if the truth turns or changes speed this close, s"
+    )
 
     @model_validator(mode="after")
     def _check(self) -> Params:
@@ -155,9 +159,25 @@ def run_metrics(
         "params": p.model_dump(mode="json"),
     }
     reinit = max((f.reinit_count for f in pf), default=0)
-    out = metrics_of_run(_rows(scored_pf, truth), _rows(scored_ekf, truth), reinit, rejected, {}, extra)
+    pf_rows, ekf_rows = _rows(scored_pf, truth), _rows(scored_ekf, truth)
+    reg = consistency.Regimes(truths_of(events, auv), p.regime_window_s)
+    period = _cycle_period(events, auv)
+    extra["consistency"] = {
+        name: consistency.per_run(rows, reg.of([round(r[0] * 1e9) for r in rows]), period)
+        for name, rows in (("pf", pf_rows), ("ekf", ekf_rows))
+        if rows
+    }
+    out = metrics_of_run(pf_rows, ekf_rows, reinit, rejected, {}, extra)
     del out["rejected_inputs"]  # OFFLINE_ONLY: added by run_core
     return out
+
+
+def _cycle_period(events: list[Event], auv: str) -> float:
+    """T_c of the vehicle's first assignment (10 s without one): the epoch grid of the ANEES."""
+    for ev in events:
+        if isinstance(ev.msg, BeaconAssignment) and ev.key.startswith(f"{keys.ROOT}/sensor/{auv}/"):
+            return float(ev.msg.cycle_period_s)
+    return 10.0
 
 
 def _skip(fixes: list[RdNavFix], departures: list[int], k: int) -> list[RdNavFix]:
@@ -213,6 +233,11 @@ def aggregate(per_run: list[dict[str, Any]]) -> dict[str, Any]:
         cycles=sum(int(r["cycles"]) for r in per_run),
         core_counts=dict(sorted(core_counts.items())),
         max_run_max_m=max((r["pf_summary"].get("max_m", float("nan")) for r in per_run if r["pf"]["n"]), default=None),
+        nis_gated=sum(int(r["rejected_cycles"].get("NIS_GATE", 0)) for r in per_run),
+        consistency={
+            name: consistency.aggregate([r["consistency"][name] for r in per_run if name in r.get("consistency", {})])
+            for name in ("pf", "ekf")
+        },
     )
     return agg
 

@@ -4,7 +4,8 @@ A discrete-event simulation on the true (scenario) clock, seconds from the start
 
 * **Field**: surveyed nodes (and base docks); the true node positions may differ from the survey.
 * **Vehicles**: docked AUVs act as beacons per the latest :class:`BeaconAssignment` fed in with
-  :meth:`Simulation.feed`; moving AUVs follow a polyline at constant speed and depth. In a fleet scenario
+  :meth:`Simulation.feed`; moving AUVs follow a polyline at constant depth, at constant speed or with a speed per leg
+  and hover times at the waypoints (:class:`ProfilePath`). In a fleet scenario
   they dock at the nodes of their route, service them, report ``SERVICE_DONE`` and leave only after a
   :class:`DepartureGrant` (fed in), announcing ``DEPARTED`` with their planned route.
 * **Acoustic channel**: the leader broadcasts every T_c (uniform 0-10 ms emission jitter); each follower
@@ -14,7 +15,9 @@ A discrete-event simulation on the true (scenario) clock, seconds from the start
   moving antenna meets the wavefront (solved iteratively), plus multipath delays, with independent packet
   loss and blackouts; the detection epoch is read on its own clock ``theta = b + (1 + skew) t + steps`` with
   noise sigma_t, and stamped on the data clock (true time + stamp jitter).
-* **Navigation sensors** of moving AUVs: DVL speed and heading with Gauss-Markov + white errors (1 Hz),
+* **Navigation sensors** of moving AUVs: DVL speed (V (1 + k) + b: a Gauss-Markov scale factor k, 0 in the
+  digest's model, and the digest's additive Gauss-Markov error b, which also acts at rest) and heading with
+  Gauss-Markov + white errors (1 Hz),
   depth, and the on-board sound-speed estimate (true c + bias + white error per cycle).
 
 Everything produced is a schema message with ``header.stamp_ns`` on the data clock, returned in stamp
@@ -31,7 +34,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy.signal import lfilter
 
 from schemas import AcousticArrival, Attitude, Depth, Header, Message, NavPacket, SoundSpeed, SpeedLog, Truth
@@ -65,6 +68,28 @@ class VehicleSpec(BaseModel):
     )
     route: list[str] = Field(default_factory=list, description="nodes to visit in order, cyclic (fleet)")
     service_s: float | None = Field(default=None, description="servicing time at a node, s (None: never done)")
+    speeds_mps: list[float] | None = Field(
+        default=None, description="speed on each leg of a waypoint path, m/s (None: the scenario's speed_mps)"
+    )
+    hold_s: list[float] | None = Field(
+        default=None, description="hover time at each waypoint of a waypoint path (the first: before leaving), s"
+    )
+    repeat: bool = Field(default=False, description="a waypoint path starts over at its end (a named path always)")
+
+    @model_validator(mode="after")
+    def _profile(self) -> VehicleSpec:
+        if self.speeds_mps is None and self.hold_s is None and not self.repeat:
+            return self
+        if not isinstance(self.path, list):
+            raise ValueError("speeds_mps, hold_s and repeat need a waypoint path")
+        legs = len(self.path) - 1
+        if self.speeds_mps is not None and (len(self.speeds_mps) != legs or min(self.speeds_mps) <= 0.0):
+            raise ValueError(f"speeds_mps: one positive speed per leg ({legs})")
+        if self.hold_s is not None and (len(self.hold_s) != legs + 1 or min(self.hold_s) < 0.0):
+            raise ValueError(f"hold_s: one non-negative time per waypoint ({legs + 1})")
+        if self.repeat and math.dist(self.path[0], self.path[-1]) > 1e-6:
+            raise ValueError("a repeated path must end where it starts")
+        return self
 
 
 class ScenarioConfig(BaseModel):
@@ -113,9 +138,15 @@ class ScenarioConfig(BaseModel):
     sigma_c_reported_mps: float | None = Field(default=None, description="sigma in SoundSpeed (None: as above)")
     # DR sensors (§5.4)
     sensor_period_s: float = Field(default=1.0, gt=0.0)
-    speed_gm_sigma_mps: float = 0.05
+    speed_gm_sigma_mps: float = Field(
+        default=0.05, ge=0.0, description="additive speed error (DVL bias), Gauss-Markov sigma, m/s: the digest's"
+    )
     speed_gm_tau_s: float = 300.0
     speed_white_mps: float = 0.02
+    speed_scale_gm_sigma: float = Field(
+        default=0.0, ge=0.0, description="speed scale-factor error, Gauss-Markov sigma (fraction of the speed) [E]"
+    )
+    speed_scale_gm_tau_s: float = Field(default=300.0, gt=0.0, description="its correlation time, s [E]")
     heading_gm_sigma_deg: float = 2.0
     heading_gm_tau_s: float = 300.0
     heading_white_deg: float = 0.5
@@ -285,6 +316,73 @@ class Path:
         return self.wp[k] + (s - self.cum[k])[:, None] * self.u[k]
 
 
+class ProfilePath:
+    """A polyline flown with a speed per leg and a hover time at each waypoint, optionally repeated.
+
+    The timeline alternates holds and legs: hold at waypoint 0, leg 0 -> 1, hold at waypoint 1, ... Speed
+    changes and turns are instantaneous (as in :class:`Path`). While hovering the vehicle keeps the heading
+    of the leg it arrived on (at waypoint 0: of the first leg) and its true speed is 0. Without ``repeat`` it
+    hovers at the last waypoint after the end.
+    """
+
+    def __init__(
+        self,
+        waypoints: list[tuple[float, float]],
+        t_start: float,
+        speeds_mps: list[float],
+        hold_s: list[float],
+        repeat: bool,
+    ) -> None:
+        wp = np.asarray(waypoints, dtype=np.float64)
+        if wp.shape[0] < 2 or len(speeds_mps) != wp.shape[0] - 1 or len(hold_s) != wp.shape[0]:
+            raise ValueError("one speed per leg and one hold time per waypoint")
+        # segments: (t0, duration, start point, unit vector, speed, heading)
+        segs: list[tuple[float, float, tuple[float, float], tuple[float, float], float, float]] = []
+        t = 0.0
+        heading = None
+        for k in range(wp.shape[0]):
+            nxt = wp[k + 1] - wp[k] if k + 1 < wp.shape[0] else None
+            length = float(np.hypot(*nxt)) if nxt is not None else 0.0
+            if heading is None:  # hover before the first leg: its heading
+                first = next(wp[j + 1] - wp[j] for j in range(wp.shape[0] - 1) if np.hypot(*(wp[j + 1] - wp[j])) > 0)
+                heading = math.atan2(float(first[1]), float(first[0]))
+            if hold_s[k] > 0.0:
+                segs.append((t, hold_s[k], (float(wp[k][0]), float(wp[k][1])), (0.0, 0.0), 0.0, heading))
+                t += hold_s[k]
+            if nxt is not None and length > 1e-9:
+                u = (float(nxt[0]) / length, float(nxt[1]) / length)
+                heading = math.atan2(u[1], u[0])
+                dur = length / speeds_mps[k]
+                segs.append((t, dur, (float(wp[k][0]), float(wp[k][1])), u, speeds_mps[k], heading))
+                t += dur
+        self._segs = segs
+        self._t0 = [sg[0] for sg in segs]
+        self.period = t
+        self.t_start = t_start
+        self.repeat = repeat
+        self._last = (float(wp[-1][0]), float(wp[-1][1]), heading if heading is not None else 0.0)
+
+    @property
+    def t_end(self) -> float:
+        return math.inf if self.repeat else self.t_start + self.period
+
+    def state(self, t: float) -> tuple[float, float, float, float]:
+        """(north, east, heading rad, speed m/s) at true time t."""
+        tau = max(t - self.t_start, 0.0)
+        if self.repeat:
+            tau = tau % self.period
+        elif tau >= self.period:
+            x, y, h = self._last
+            return x, y, h, 0.0
+        k = max(bisect.bisect_right(self._t0, tau) - 1, 0)
+        t0, _, p0, u, v, h = self._segs[k]
+        ds = (tau - t0) * v
+        return p0[0] + ds * u[0], p0[1] + ds * u[1], h, v
+
+    def positions(self, t: F64) -> F64:
+        return np.array([self.state(float(x))[:2] for x in np.asarray(t).ravel()]).reshape(-1, 2)
+
+
 # ============================================================================ engine =====
 @dataclass(frozen=True)
 class Emitted:
@@ -324,6 +422,8 @@ class DrSensorErrors:
         self.gm_h = math.radians(cfg.heading_gm_sigma_deg) * float(rng.standard_normal())
         self._dv: list[float] = []
         self._dh: list[float] = []
+        self._rng_scale: np.random.Generator | None = None
+        self._scale = 0.0
 
     def block(self, n: int) -> tuple[F64, F64]:
         """The next n samples (speed error m/s, heading error rad)."""
@@ -355,6 +455,23 @@ class DrSensorErrors:
             self._dv, self._dh = dv.tolist()[::-1], dh.tolist()[::-1]
         return self._dv.pop(), self._dh.pop()
 
+    def next_scale(self) -> float:
+        """The speed scale-factor error of the next sample (Gauss-Markov; its own stream, so that the digest's
+        additive errors stay the same draws whether or not a scale error is simulated)."""
+        cfg = self.cfg
+        if cfg.speed_scale_gm_sigma <= 0.0:
+            return 0.0
+        if self._rng_scale is None:
+            seq = self.rng.bit_generator.seed_seq
+            child = seq.spawn(1)[0] if isinstance(seq, np.random.SeedSequence) else np.random.SeedSequence(0)
+            self._rng_scale = np.random.default_rng(child)
+            self._scale = cfg.speed_scale_gm_sigma * float(self._rng_scale.standard_normal())
+            return self._scale
+        a = math.exp(-cfg.sensor_period_s / cfg.speed_scale_gm_tau_s)
+        w = float(self._rng_scale.standard_normal())
+        self._scale = a * self._scale + cfg.speed_scale_gm_sigma * math.sqrt(1.0 - a * a) * w
+        return self._scale
+
 
 @dataclass
 class _Vehicle:
@@ -362,7 +479,7 @@ class _Vehicle:
     spec: VehicleSpec
     state: str  # DOCKED, DONE, TRANSIT
     node_id: str | None
-    path: Path | None = None
+    path: Path | ProfilePath | None = None
     transmitting: bool = False
     route_idx: int = 0
     clock_offset_s: float = 0.0
@@ -509,8 +626,13 @@ class Simulation:
                 if spec.path is None:
                     raise ValueError(f"{v.auv_id} starts moving without a path")
                 wps = ref_path(spec.path, self.cfg.nodes) if isinstance(spec.path, str) else list(spec.path)
-                repeat = isinstance(spec.path, str)
-                v.path = Path(wps, 0.0, self.cfg.speed_mps, repeat)
+                repeat = isinstance(spec.path, str) or spec.repeat
+                if spec.speeds_mps is None and spec.hold_s is None:
+                    v.path = Path(wps, 0.0, self.cfg.speed_mps, repeat)
+                else:
+                    legs = len(wps) - 1
+                    speeds = spec.speeds_mps or [self.cfg.speed_mps] * legs
+                    v.path = ProfilePath(wps, 0.0, speeds, spec.hold_s or [0.0] * (legs + 1), repeat)
                 x, y, _, _ = v.path.state(0.0)
                 self._status(v, "DEPARTED", None, position=[x, y, v.depth_m], route=[[*p, v.depth_m] for p in wps[:32]])
                 self._begin_sensors(v, 0.0)
@@ -598,8 +720,9 @@ class Simulation:
         assert v.errors is not None
         dt = cfg.sensor_period_s
         dv, dh = v.errors.next()
+        ds = v.errors.next_scale()
         _, _, heading, speed = v.path.state(self.now)
-        v_meas = speed + dv
+        v_meas = speed * (1.0 + ds) + dv
         h_meas = heading + dh
         h_meas = math.atan2(math.sin(h_meas), math.cos(h_meas))
         hdr = self._header(self.now, f"{v.auv_id}/body")

@@ -104,6 +104,13 @@ class VehicleParams(SimParams):
     )
     route: list[str] = Field(default_factory=list, max_length=256, description="nodes to visit in order (cyclic)")
     service_s: float | None = Field(default=None, gt=0.0, description="servicing time at a node, s (None: never)")
+    speeds_mps: list[Annotated[float, Field(gt=0.0, le=10.0)]] | None = Field(
+        default=None, max_length=4096, description="speed on each leg of a waypoint path, m/s (None: speed_mps)"
+    )
+    hold_s: list[Annotated[float, Field(ge=0.0)]] | None = Field(
+        default=None, max_length=4096, description="hover time at each waypoint (the first: before leaving), s"
+    )
+    repeat: bool = Field(default=False, description="a waypoint path starts over at its end")
 
     @model_validator(mode="after")
     def _where(self) -> VehicleParams:
@@ -111,6 +118,17 @@ class VehicleParams(SimParams):
             raise ValueError("give exactly one of node (docked at the start) and path (moving at the start)")
         if isinstance(self.path, list) and len(self.path) < 2:
             raise ValueError("a waypoint path needs at least two points")
+        profiled = self.speeds_mps is not None or self.hold_s is not None or self.repeat
+        if profiled and not isinstance(self.path, list):
+            raise ValueError("speeds_mps, hold_s and repeat need a waypoint path")
+        if isinstance(self.path, list):
+            legs = len(self.path) - 1
+            if self.speeds_mps is not None and len(self.speeds_mps) != legs:
+                raise ValueError(f"speeds_mps: one speed per leg ({legs})")
+            if self.hold_s is not None and len(self.hold_s) != legs + 1:
+                raise ValueError(f"hold_s: one hover time per waypoint ({legs + 1})")
+            if self.repeat and (self.path[0][0], self.path[0][1]) != (self.path[-1][0], self.path[-1][1]):
+                raise ValueError("a repeated path must end where it starts")
         return self
 
 
@@ -185,6 +203,10 @@ class RdGroupParams(SimParams):
     speed_gm_sigma_mps: float | None = Field(default=None, ge=0.0, description="speed Gauss-Markov sigma, m/s")
     speed_gm_tau_s: float | None = Field(default=None, gt=0.0, description="its correlation time, s")
     speed_white_mps: float | None = Field(default=None, ge=0.0, description="white speed noise, m/s")
+    speed_scale_gm_sigma: float | None = Field(
+        default=None, ge=0.0, le=0.5, description="speed scale-factor Gauss-Markov sigma (fraction of the speed)"
+    )
+    speed_scale_gm_tau_s: float | None = Field(default=None, gt=0.0, description="its correlation time, s")
     heading_gm_sigma_deg: float | None = Field(default=None, ge=0.0, description="heading Gauss-Markov sigma, deg")
     heading_gm_tau_s: float | None = Field(default=None, gt=0.0, description="its correlation time, s")
     heading_white_deg: float | None = Field(default=None, ge=0.0, description="white heading noise, deg")
@@ -247,6 +269,9 @@ class RdGroupParams(SimParams):
                     path=v.path if isinstance(v.path, str) or v.path is None else [(p[0], p[1]) for p in v.path],
                     route=list(v.route),
                     service_s=v.service_s,
+                    speeds_mps=v.speeds_mps,
+                    hold_s=v.hold_s,
+                    repeat=v.repeat,
                 )
                 for v in self.vehicles
             ]
