@@ -364,7 +364,8 @@ class LblNavCore:
             lr = [initiation.LaunchRange(r.beacon_id, *self.beacons[r.beacon_id], r.y_m, r.T_s) for r in ranges]
             res = initiation.launch(lr, self.depth_m, cfg, k, t_k)
             if res.ok:
-                return outs + self._launch(k, t_k, dr, res, len(lr))
+                rows = [self._row("i", k, r, self.depth_m) for r in ranges]
+                return outs + self._launch(k, t_k, dr, res, len(lr), rows)
             outs.append(self._event(t_k, "launch_postponed", reason=res.reason, detail=res.detail))
         if ranges or self.buffer:
             rows = [self._row("s", k, r, self.depth_m) for r in ranges] if ranges and self.depth_m is not None else []
@@ -384,7 +385,9 @@ class LblNavCore:
         outs.append(self._fix(t_k, self.state, dr))
         return outs
 
-    def _launch(self, k: int, t_k: int, dr: DrInterval, res: initiation.LaunchResult, n0: int) -> list[Message]:
+    def _launch(
+        self, k: int, t_k: int, dr: DrInterval, res: initiation.LaunchResult, n0: int, rows: list[Row]
+    ) -> list[Message]:
         cfg = self.cfg
         hyps = [HypothesisFilter(u + 1, c.X0, c.P0, c.A0, c.lnB0) for u, c in enumerate(res.candidates)]
         buffer = self.buffer if (cfg.use_buffered and dr.valid) else []
@@ -395,7 +398,7 @@ class LblNavCore:
             outs.append(
                 self._event(t_k, "buffer_truncated", reason="dr_gap", detail=f"{len(self.buffer)} epochs at launch")
             )
-        self.bank = HypothesisBank(cfg, self.motion, hyps, buffer, dr)
+        self.bank = HypothesisBank(cfg, self.motion, hyps, buffer, dr, rows)
         self.buffer = []
         self.k0, self.launch_stamp_ns = k, t_k
         self.last_range_used_ns = t_k
@@ -431,7 +434,24 @@ class LblNavCore:
         self._decision_lr = d.log_ratio
         if d.kind == "decision":
             self.source, self.accepted = "resolved", d.hypothesis_id
-            return [self._event(t_k, "decision", hypothesis_id=d.hypothesis_id, log10_ratio=d.log_ratio / math.log(10))]
+            detail = ""
+            if d.exact is not None:
+                ekf = self.bank.log_ratio_at_decision
+                detail = f"exact over {d.exact.epochs} epochs"
+                if d.exact.log_ratio_robust is not None:
+                    detail += f"; robust log10 {d.exact.log_ratio_robust / math.log(10):.3f}"
+                if ekf is not None:
+                    detail += f"; ekf log10 {ekf / math.log(10):.3f}"
+            return [
+                self._event(
+                    t_k,
+                    "decision",
+                    reason="exact" if d.exact is not None else "ekf",
+                    detail=detail,
+                    hypothesis_id=d.hypothesis_id,
+                    log10_ratio=d.log_ratio / math.log(10),
+                )
+            ]
         self.source, self.accepted = "merged", None
         return [self._event(t_k, "merge", log10_ratio=d.log_ratio / math.log(10))]
 
