@@ -26,13 +26,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.stats import beta
 
 from schemas.lbl_nav import LblEvent, LblFix
 from services.lbl_nav.bounds import NoiseModel, exact_log_ratio_at
 from services.lbl_nav.config import LblNavConfig
 from services.lbl_nav.core import LblNavCore
 from services.lbl_nav.experiment import feed
+from services.lbl_nav.metrics import binomial_upper95 as upper95
 from services.lbl_nav.simulation import SimRun, simulate
 from services.lbl_nav.simulator import sim_params
 from services.player.scenario import load_scenario
@@ -41,11 +41,6 @@ ROOT = Path(__file__).resolve().parent.parent
 NS = 1_000_000_000
 LN10 = math.log(10.0)
 TURN_DPS = 0.5
-
-
-def upper95(k: int, n: int) -> float:
-    """One-sided 95 % Clopper-Pearson upper bound of a binomial rate (k of n)."""
-    return 1.0 if k >= n else float(beta.ppf(0.95, k + 1, n - k))
 
 
 def one_run(args: tuple[str, int, str]) -> dict[str, Any]:
@@ -112,8 +107,9 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
     wrong = sum(r["wrong"] for r in rows)
     times = [r["t_s"] for r in dec]
     diffs = [r["log10_ratio"] - r["exact_log10"] for r in dec if not r["wrong"]]
-    ns = [r["nees_straight"] for r in dec if r.get("nees_straight")]
-    nt = [r["nees_turn"] for r in dec if r.get("nees_turn")]
+    # consistency of the fixes that follow a correct decision (after a wrong one the filter tracks the mirror)
+    ns = [r["nees_straight"] for r in dec if r.get("nees_straight") and not r["wrong"]]
+    nt = [r["nees_turn"] for r in dec if r.get("nees_turn") and not r["wrong"]]
     return {
         "runs": n,
         "decided": len(dec),
@@ -131,6 +127,7 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "nees_straight": _nees(ns),
         "nees_turn": _nees(nt),
         "cpu_s_per_run": float(np.mean([r["cpu_s"] for r in rows])),
+        "decisions": [{k: r[k] for k in ("seed", "wrong", "t_s", "log10_ratio", "exact_log10")} for r in dec],
     }
 
 

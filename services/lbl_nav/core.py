@@ -75,6 +75,15 @@ def _construct(cls: type[M], kw: dict[str, Any]) -> M:
     return obj
 
 
+#: [IMPL] physically possible values of the DR inputs (m/s, m); anything beyond is refused before use, so that a
+#: finite but absurd value (1e150 m of depth) cannot overflow the filters. Headings are any finite angle.
+_PHYSICAL_LIMITS: dict[str, tuple[float, float]] = {
+    "SpeedLog": (-50.0, 50.0),
+    "Depth": (-100.0, 12_000.0),
+    "Current": (-20.0, 20.0),
+}
+
+
 @dataclass(frozen=True)
 class _Range:
     beacon_id: str
@@ -199,6 +208,9 @@ class LblNavCore:
         for v in vals:
             if not math.isfinite(v):
                 raise InputRejected("non_finite", f"{name} at {stamp} ns")
+        limit = _PHYSICAL_LIMITS.get(name)
+        if limit is not None and not all(limit[0] <= v <= limit[1] for v in vals):
+            raise InputRejected("out_of_range", f"{name} at {stamp} ns: {vals} outside {limit}")
         last = self._last.get(name)
         dr_input = isinstance(msg, SpeedLog | Heading)
         if last is not None and stamp < last:
@@ -341,10 +353,15 @@ class LblNavCore:
                 outs.append(self._event(t_k, "rejected", reason="no_depth", detail=f"range to {r.beacon_id}"))
             ranges = []
         ranges = [r for r in ranges if r.beacon_id in self.beacons]
-        if self.bank is None:
-            outs += self._pre_launch(k, t_k, dr, ranges)
-        else:
-            outs += self._post_launch(k, t_k, dr, ranges)
+        try:
+            if self.bank is None:
+                outs += self._pre_launch(k, t_k, dr, ranges)
+            else:
+                outs += self._post_launch(k, t_k, dr, ranges)
+        except (np.linalg.LinAlgError, FloatingPointError) as exc:
+            # [IMPL] a filter that lost positive definiteness is not trusted further: reported, fresh buffer
+            outs += self._reset(t_k, "numerical", f"{type(exc).__name__}: {exc}"[:4000])
+            outs.append(self._fix(t_k, "WAITING", dr))
         return outs
 
     def _pre_launch(self, k: int, t_k: int, dr: DrInterval, ranges: list[_Range]) -> list[Message]:

@@ -134,6 +134,8 @@ class ExactDecision:
             warm = self._warm.get((robust, u))
             z0 = rec.extend(*warm) if warm is not None else None
             f: Fit = fit(rec, start, z0=z0)
+            if not f.converged:
+                raise ArithmeticError("Gauss-Newton did not converge")
             self._warm[(robust, u)] = (f.z, rec.n)
             ev.append(f.log_evidence)
         lr = ev[0] - ev[1]
