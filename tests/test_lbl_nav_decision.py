@@ -343,7 +343,7 @@ def _step_all(core: LblNavCore, msgs: list[Message]) -> tuple[list[Message], dic
     return outs + core.flush(), refused
 
 
-@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 @given(data=st.data())
 def test_core_survives_extreme_and_invalid_inputs_with_its_state_intact(data: st.DataObject) -> None:
     """Only InputRejected comes out of ``step``; every refused input leaves the core as if it had never been sent
@@ -368,7 +368,7 @@ def test_core_survives_extreme_and_invalid_inputs_with_its_state_intact(data: st
             assert np.all(np.isfinite(P)) and np.array_equal(P, P.T)
 
 
-@settings(max_examples=30, deadline=None)
+@settings(max_examples=10, deadline=None)
 @given(payload=st.one_of(st.binary(max_size=64), st.dictionaries(st.text(max_size=8), st.integers(), max_size=4)))
 def test_service_handler_refuses_garbage_and_counts_it(payload: Any) -> None:
     """Random bytes or msgpack maps on a sensor key: refused with a reason, never raised, counters add up."""
@@ -406,7 +406,7 @@ def test_runs_the_paper_rule_decides_wrongly_are_not_decided_wrongly_by_the_hone
     """A track 0.5 deg off the beacon line: in these runs rule (6) on the EKF ratio accepts the mirror (negative
     control, checked here too), the honest rule must not (the exact ratio with the doubled priors stays inside
     the threshold: evidence that rests on the heading prior's tail)."""
-    for seed in PAPER_WRONG_0P5[:3]:
+    for seed in PAPER_WRONG_0P5[:2]:
         sim = _family_run("lbl_nav_nc_0p5", seed)
         paper = run_core(scenario_config("S3", preset="paper"), sim, stop_when_resolved=True)
         assert paper.wrong, seed
@@ -415,12 +415,13 @@ def test_runs_the_paper_rule_decides_wrongly_are_not_decided_wrongly_by_the_hone
 
 
 def test_no_wrong_decision_on_a_small_near_collinear_sample() -> None:
-    """40 fresh runs of the issue's 3 deg track with the honest rule: 0 wrong decisions. At the digest's rate
-    (S1.a: at most 1 in 1,500) the chance of one or more in 40 runs is 1 - (1 - 1/1500)^40 = 2.6 %, so the test
-    fails by chance rarely; the paper's rule (6 wrong in 1,000 at 0.5 deg, docs/lbl_nav.md) would fail it about one
-    time in five. The full-size figures are the bench's (1,000 runs per geometry)."""
+    """20 fresh runs of the issue's 3 deg track with the honest rule: 0 wrong decisions. At the digest's rate
+    (S1.a: at most 1 in 1,500) the chance of one or more in 20 runs is 1 - (1 - 1/1500)^20 = 1.3 %, so the test
+    fails by chance rarely; it is a smoke test of the rule on fresh data (power against the paper's 0.6 % at
+    0.5 deg: 11 %), the regression set above is the sharp one. The full-size figures are the bench's (1,000 runs
+    per geometry)."""
     wrong = 0
-    for seed in range(1_603_900_000, 1_603_900_040):
+    for seed in range(1_603_900_000, 1_603_900_020):
         tr = run_core(scenario_config("S3", preset="honest"), _family_run("lbl_nav_nc_3", seed), True)
         wrong += tr.wrong
     assert wrong == 0
