@@ -83,7 +83,7 @@ def _brute_force_log_ratio(
     epochs, integrating N(dc; 0, sigma_dc^2) adds 1/2 b^2 / (1/sigma_dc^2 + a) - 1/2 ln(1 + sigma_dc^2 a))."""
     n = len(epochs)
     s_dc2 = 9.0
-    dks = np.linspace(-6.0 * sigma_dK, 6.0 * sigma_dK, 97) if sigma_dK > 0 else np.zeros(1)
+    dks = np.linspace(-6.0 * sigma_dK, 6.0 * sigma_dK, 73) if sigma_dK > 0 else np.zeros(1)
     out = []
     for side in (1.0, -1.0):
         centre = np.array([side * xy0[0], xy0[1]])
@@ -156,12 +156,12 @@ def test_exact_evidence_equals_a_brute_force_integral_without_heading_error() ->
 
 def test_exact_evidence_equals_a_brute_force_integral_with_a_heading_error() -> None:
     """Unknowns x_0, dK (exact rotation of the log displacement, Gaussian prior 5 deg) and dc; the true heading
-    error is 4 deg, and the mirror needs about -10 deg. Tolerance 0.05 nats: as above plus the dK grid (97 nodes
-    over +/- 6 sigma, 0.6 deg apart, against posteriors of dK about 2 deg wide)."""
+    error is 4 deg, and the mirror needs about -10 deg. Tolerance 0.05 nats: as above plus the grids (4 m cells;
+    73 dK nodes over +/- 6 sigma, 0.8 deg apart, against posteriors of dK about 2 deg wide)."""
     sk = math.radians(5.0)
     epochs, dr, xy = _tiny(seed=4, n=30, heading_deg=5.0, dK_true=math.radians(4.0), two_every=10, bend_deg=5.0)
     batch = _batch_log_ratio(epochs, _priors(sk), xy[-1])
-    brute = _brute_force_log_ratio(epochs, dr, sk, 121, 180.0, xy[0])
+    brute = _brute_force_log_ratio(epochs, dr, sk, 91, 180.0, xy[0])
     assert abs(batch) > 1.0, batch
     assert batch == pytest.approx(brute, abs=0.05)
 
@@ -406,7 +406,7 @@ def test_runs_the_paper_rule_decides_wrongly_are_not_decided_wrongly_by_the_hone
     """A track 0.5 deg off the beacon line: in these runs rule (6) on the EKF ratio accepts the mirror (negative
     control, checked here too), the honest rule must not (the exact ratio with the doubled priors stays inside
     the threshold: evidence that rests on the heading prior's tail)."""
-    for seed in PAPER_WRONG_0P5[:2]:
+    for seed in PAPER_WRONG_0P5[:1]:
         sim = _family_run("lbl_nav_nc_0p5", seed)
         paper = run_core(scenario_config("S3", preset="paper"), sim, stop_when_resolved=True)
         assert paper.wrong, seed
@@ -415,13 +415,13 @@ def test_runs_the_paper_rule_decides_wrongly_are_not_decided_wrongly_by_the_hone
 
 
 def test_no_wrong_decision_on_a_small_near_collinear_sample() -> None:
-    """20 fresh runs of the issue's 3 deg track with the honest rule: 0 wrong decisions. At the digest's rate
-    (S1.a: at most 1 in 1,500) the chance of one or more in 20 runs is 1 - (1 - 1/1500)^20 = 1.3 %, so the test
-    fails by chance rarely; it is a smoke test of the rule on fresh data (power against the paper's 0.6 % at
-    0.5 deg: 11 %), the regression set above is the sharp one. The full-size figures are the bench's (1,000 runs
-    per geometry)."""
+    """12 fresh runs of the issue's 3 deg track with the honest rule: 0 wrong decisions. At the digest's rate
+    (S1.a: at most 1 in 1,500) the chance of one or more in 12 runs is 1 - (1 - 1/1500)^12 = 0.8 %, so the test
+    fails by chance rarely; it is a smoke test of the rule on fresh data (its power against the paper's 0.3 % at
+    3 deg is only 4 %), the regression run above is the sharp one. The full-size figures are the bench's (1,000
+    runs per geometry)."""
     wrong = 0
-    for seed in range(1_603_900_000, 1_603_900_020):
+    for seed in range(1_603_900_000, 1_603_900_012):
         tr = run_core(scenario_config("S3", preset="honest"), _family_run("lbl_nav_nc_3", seed), True)
         wrong += tr.wrong
     assert wrong == 0
