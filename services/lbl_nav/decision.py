@@ -126,18 +126,29 @@ class ExactDecision:
         return self.last
 
     def _log_ratio(self, robust: bool, starts: tuple[Start, Start]) -> float:
-        """ln p(Y | u = 1) - ln p(Y | u = 2) (Laplace at each hypothesis's MAP)."""
+        """ln p(Y | u = 1) - ln p(Y | u = 2), Laplace at each hypothesis's MAP. Gauss-Newton runs from the
+        hypothesis's EKF estimate and, if there is one, from its last MAP solution carried forward; the solution
+        with the lower cost is the MAP (a warm start alone once settled in a worse local optimum: a wrong decision
+        of the 5 deg family, docs/lbl_nav.md)."""
         pri = self.pri_robust if robust and self.pri_robust is not None else self.pri
         rec = Record(self.epochs, pri)
         ev = []
         for u, start in enumerate(starts):
+            best: Fit | None = None
             warm = self._warm.get((robust, u))
-            z0 = rec.extend(*warm) if warm is not None else None
-            f: Fit = fit(rec, start, z0=z0)
-            if not f.converged:
+            for z0 in (None, rec.extend(*warm) if warm is not None else None):
+                if z0 is None and best is not None:
+                    continue
+                try:
+                    f: Fit = fit(rec, start, z0=z0)
+                except (np.linalg.LinAlgError, ArithmeticError):
+                    continue
+                if f.converged and (best is None or f.cost < best.cost):
+                    best = f
+            if best is None:
                 raise ArithmeticError("Gauss-Newton did not converge")
-            self._warm[(robust, u)] = (f.z, rec.n)
-            ev.append(f.log_evidence)
+            self._warm[(robust, u)] = (best.z, rec.n)
+            ev.append(best.log_evidence)
         lr = ev[0] - ev[1]
         if not math.isfinite(lr):
             raise ArithmeticError("exact log ratio is not finite")
