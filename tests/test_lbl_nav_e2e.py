@@ -86,7 +86,7 @@ def test_stack_gives_the_offline_and_in_process_fixes(tmp_path: Path, monkeypatc
     assert keys.diag("lbl_nav", "lbl1") not in got and not diags(offline)  # nothing refused
     assert {k for k in got if k.startswith("fixstream/fix/")} == {FIX, EVENT}
     # the same outputs as the core in-process on the same seed
-    core = core_outputs(feed)
+    core = core_outputs(feed, svc.core_config)  # the composed service's configuration (the default preset)
     assert without_source_seq(m for m in core if isinstance(m, LblFix)) == without_source_seq(fixes)
     assert without_source_seq(m for m in core if isinstance(m, LblEvent)) == without_source_seq(got[EVENT])
     # everything the player published was recorded, and it is the scenario's events
@@ -114,7 +114,7 @@ def test_stack_gives_the_offline_and_in_process_fixes(tmp_path: Path, monkeypatc
 
 def test_bad_input_over_a_real_router(router: str) -> None:
     sc = scenario(duration_s=170.0, dropouts=[{"stream": "log", "start_s": 130.0, "duration_s": 30.0}])
-    twin = make_service(instance="bad1", vehicle="lbl1")
+    twin = make_service(instance="bad1", vehicle="lbl1", preset="honest")  # the live service's default preset
     feed = delivered(twin, all_events(sc))
     i_pre, i_post, i_gate = at(feed, 60.0), at(feed, 115.0), at(feed, 120.0)
     pre = next(m for _, m in feed[i_pre:] if isinstance(m, BeaconRange))

@@ -180,7 +180,8 @@ def test_a_late_pre_launch_range_is_inserted_into_its_buffered_epoch() -> None:
 # ---- launch, lifecycle and outputs ------------------------------------------------------------------------------
 def test_lifecycle_waiting_buffering_launch_ambiguous_resolved_tracking() -> None:
     sim = _sim(seed=2, t_start=-150.0, t_end=40.0)
-    outs, rejected = _run(LblNavCore(LblNavConfig()), sim.messages)
+    # the paper's rule (6): the honest preset decides at launch here (the buffered turn), see test_lbl_nav_decision
+    outs, rejected = _run(LblNavCore(LblNavConfig(preset="paper")), sim.messages)
     assert len(rejected) <= 2  # at most the odd noisy range dropped by the pre-launch range-rate gate
     fixes = [o for o in outs if isinstance(o, LblFix)]
     statuses = [f.status for f in fixes]
@@ -257,7 +258,7 @@ def test_a_range_inconsistent_only_with_the_mirror_is_kept_and_resolves() -> Non
         t_end_s=15.0,
     )
     sim = simulate(spec, np.random.default_rng(5), 5)
-    outs, _ = _run(LblNavCore(LblNavConfig(use_buffered=False)), sim.messages)
+    outs, _ = _run(LblNavCore(LblNavConfig(use_buffered=False, preset="paper")), sim.messages)
     t0 = int(sim.stamps_ns[sim.i0])
     decision = next(o for o in outs if isinstance(o, LblEvent) and o.kind == "decision")
     assert (decision.header.stamp_ns - t0) / NS <= 3.0

@@ -172,7 +172,7 @@ def test_run_core_is_the_experiment_and_the_metrics_of_what_the_service_publishe
     assert w["catch_up_done_s"] == 10.0  # N = 97, 10 per epoch: done at t0 + 10 s (U11)
 
     # the service configured like params.config, offline on the same events: run_metrics of what it publishes
-    svc = LblNavService(LblNavSettings(instance="lbl1", N_max=97, sigma_dK_rad=0.0, sigma_dU_mps=0.0))
+    svc = LblNavService(LblNavSettings(instance="lbl1", preset="paper", N_max=97, sigma_dK_rad=0.0, sigma_dU_mps=0.0))
     feed = [(e.key, e.msg) for e in events]
     published = svc.run_offline(delivered(svc, framed(sc, feed, 7)))
     outputs = [Event(o.msg.header.stamp_ns, o.key, o.msg) for o in published]

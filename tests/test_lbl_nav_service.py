@@ -58,6 +58,8 @@ def scenario(duration_s: float = 140.0, seed: int = 4, **params: Any) -> Scenari
 
 
 def make_service(**settings: Any) -> LblNavService:
+    """The service with the paper's rule (6) unless ``preset`` is given (the S2 timings below are the paper's)."""
+    settings.setdefault("preset", "paper")
     return LblNavService(LblNavSettings(instance=settings.pop("instance", VEHICLE), **settings))
 
 
@@ -80,7 +82,7 @@ def diags(outputs: Sequence[Output]) -> list[Diagnostic]:
 
 def core_outputs(feed: Feed, config: LblNavConfig | None = None) -> list[Message]:
     """The core in-process on the same messages (refusals skipped), flushed at the end."""
-    core = LblNavCore(config or LblNavConfig(platform=VEHICLE, validate_outputs=False))
+    core = LblNavCore(config or LblNavConfig(platform=VEHICLE, validate_outputs=False, preset="paper"))
     out: list[Message] = []
     for _, msg in feed:
         if isinstance(msg, ScenarioMarker):
@@ -219,7 +221,7 @@ def test_outputs_built_without_validation_equal_the_validated_ones(s2: tuple[Sce
     """The service skips the output re-validation (validate_outputs False, for speed): the messages are equal to the
     validated ones, field for field, and survive the wire (encode, strict decode)."""
     _, feed, out = s2
-    validated = core_outputs(feed, LblNavConfig(platform=VEHICLE, validate_outputs=True))
+    validated = core_outputs(feed, LblNavConfig(platform=VEHICLE, validate_outputs=True, preset="paper"))
     assert without_source_seq(o.msg for o in out) == without_source_seq(validated)
     for o in out[95:105]:
         assert codec.decode(codec.encode(o.msg), codec.encoding_of(type(o.msg))) == o.msg

@@ -205,7 +205,7 @@ def _s1_sim(seed: int, t_end: float = 40.0):
 
 def test_u8_ratio_is_one_at_launch() -> None:
     sim = _s1_sim(3, t_end=2.0)
-    core = LblNavCore(LblNavConfig())
+    core = LblNavCore(LblNavConfig(preset="paper"))  # rule (6) on the EKF ratio (the honest preset decides here)
     launch_fix = None
     for m in sim.messages:
         for o in core.step(m):
@@ -221,7 +221,7 @@ def test_u8_ratio_is_one_at_launch() -> None:
 
 def test_u12_both_filters_process_identical_measurements() -> None:
     sim = _s1_sim(11, t_end=40.0)
-    core = LblNavCore(LblNavConfig(ratio_threshold=1e30))  # never decide: keep both alive
+    core = LblNavCore(LblNavConfig(ratio_threshold=1e30, preset="paper"))  # never decide: keep both alive
     checked = 0
     for m in sim.messages:
         core.step(m)
@@ -268,7 +268,7 @@ def test_u9_mirrored_scenario_flips_the_label_and_the_log_ratio() -> None:
             return m.model_copy(update={"u_east_mps": float(r[0]), "u_north_mps": float(r[1])})
         return m  # ranges, depth and the beacon table are unchanged by the reflection
 
-    cfg = LblNavConfig(ratio_threshold=1e30)
+    cfg = LblNavConfig(ratio_threshold=1e30, preset="paper")  # the EKF ratio, never decided
     ratios = []
     for msgs in (sim.messages, [mirror(m) for m in sim.messages]):
         core = LblNavCore(cfg)

@@ -279,3 +279,34 @@ def log_ratio_true_over_mirror(run: SimRun, noise: NoiseModel, buffered: bool, d
 
 def _first_range(data: EpochData) -> int:
     return next(k for k, rows in enumerate(data.ranges) if rows)
+
+
+def mirror_heading_correction(run: SimRun, data: EpochData) -> F64:
+    """dK the mirror hypothesis needs at every epoch: the mirror of the true track has heading 2 alpha - K_true
+    (alpha the beacon line's azimuth), so dK' = 2 alpha - K_true - K_measured (true heading = measured + dK)."""
+    names = sorted(data.beacons)
+    b1, b2 = data.beacons[names[0]], data.beacons[names[1]]
+    alpha = math.atan2(b2[0] - b1[0], b2[1] - b1[1])
+    k_measured = run.heading_true_rad - run.dK_rad
+    return np.asarray(2.0 * alpha - run.heading_true_rad - k_measured, dtype=np.float64)
+
+
+def exact_log_ratio_at(
+    run: SimRun, noise: NoiseModel, k_last: int, n_buffered: int | None = None, heading_at_truth: bool = True
+) -> float:
+    """Exact ln dp (true over mirror) of the data of epochs k_first..k_last, k_first = the first range (all
+    buffered epochs, ``n_buffered`` None) or the launch epoch minus ``n_buffered`` (what the estimator had
+    processed; section 2.4's schedule). The ranges are linearised at the truth and at its mirror image, the heading
+    terms at the true dK and at the dK the mirror needs (``heading_at_truth``; False: about 0, as the paper's EKF),
+    so that the only approximation left is the range curvature over the posterior width."""
+    data = epoch_data(run)
+    first = _first_range(data)
+    k_first = first if n_buffered is None else max(first, data.i0 - n_buffered)
+    names = sorted(data.beacons)
+    b1, b2 = data.beacons[names[0]], data.beacons[names[1]]
+    mir = mirror_xy(data.xy_true, b1[:2], b2[:2])
+    dk_t = run.dK_rad if heading_at_truth else None
+    dk_m = mirror_heading_correction(run, data) if heading_at_truth else None
+    t = linearised_filter(data, noise, k_first, k_last, dK_lin=dk_t)
+    m = linearised_filter(data, noise, k_first, k_last, lin_xy=mir, dK_lin=dk_m)
+    return float(0.5 * (m.lnB[-1] - t.lnB[-1]) + 0.5 * (m.A[-1] - t.A[-1]))

@@ -13,6 +13,14 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from schemas import Beacon
 
+#: field values each preset sets unless they are given explicitly
+PRESETS: dict[str, dict[str, object]] = {
+    # the paper's rule (6) on the EKF's accumulated ratio
+    "paper": {"decision_statistic": "ekf", "robust_prior_scale": 1.0},
+    # rule (6) on the exact evidence of the whole record, robust to the width of the error-state priors
+    "honest": {"decision_statistic": "exact", "robust_prior_scale": 2.0},
+}
+
 
 class LblNavConfig(BaseModel):
     """Configuration of one core instance (one vehicle)."""
@@ -97,6 +105,27 @@ class LblNavConfig(BaseModel):
     N_max: int = Field(default=360, ge=0, description="[D] buffer cap N_max (360 paper sim, 97 field)")
 
     # --- decision (2.5) -------------------------------------------------------------------------------------------
+    preset: Literal["honest", "paper"] = Field(
+        default="honest",
+        description="[IMPL] decision rule: 'paper' = rule (6) on the EKF ratio; 'honest' = rule (6) on the exact "
+        "evidence of the whole record, robust to the error-state priors (see decision.py); sets the fields below "
+        "unless they are given",
+    )
+    decision_statistic: Literal["ekf", "exact"] = Field(
+        default="exact", description="[IMPL] ln dp compared with the threshold: the EKF's (paper) or the exact one"
+    )
+    robust_prior_scale: float = Field(
+        default=2.0,
+        ge=1.0,
+        le=100.0,
+        description="[IMPL] exact rule: the decision must also hold with sigma_dK, sigma_dU times this (1: no check)",
+    )
+    exact_trigger_decades: float = Field(
+        default=1.0, ge=0.0, le=100.0, description="[IMPL] evaluate the exact ratio when the EKF's is this close"
+    )
+    exact_recheck_epochs: int = Field(
+        default=5, ge=1, description="[IMPL] epochs between two exact evaluations while the EKF ratio stays close"
+    )
     ratio_threshold: float = Field(default=1e4, gt=1.0, description="[P] delta p max/min")
     r_merge_m: float = Field(default=20.0, ge=0.0, description="[D] merge radius r (not given by the paper), m")
 
@@ -121,6 +150,16 @@ class LblNavConfig(BaseModel):
     validate_outputs: bool = Field(
         default=True, description="[IMPL] False: build outputs without pydantic validation (Monte-Carlo speed only)"
     )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _preset(cls, data: object) -> object:
+        """Fill the preset's values of the fields that are not given explicitly."""
+        if isinstance(data, dict):
+            name = data.get("preset", "honest")
+            if isinstance(name, str) and name in PRESETS:
+                data = {**PRESETS[name], **data}
+        return data
 
     @model_validator(mode="after")
     def _check(self) -> LblNavConfig:

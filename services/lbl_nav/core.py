@@ -75,6 +75,15 @@ def _construct(cls: type[M], kw: dict[str, Any]) -> M:
     return obj
 
 
+#: [IMPL] physically possible values of the DR inputs (m/s, m); anything beyond is refused before use, so that a
+#: finite but absurd value (1e150 m of depth) cannot overflow the filters. Headings are any finite angle.
+_PHYSICAL_LIMITS: dict[str, tuple[float, float]] = {
+    "SpeedLog": (-50.0, 50.0),
+    "Depth": (-100.0, 12_000.0),
+    "Current": (-20.0, 20.0),
+}
+
+
 @dataclass(frozen=True)
 class _Range:
     beacon_id: str
@@ -199,6 +208,9 @@ class LblNavCore:
         for v in vals:
             if not math.isfinite(v):
                 raise InputRejected("non_finite", f"{name} at {stamp} ns")
+        limit = _PHYSICAL_LIMITS.get(name)
+        if limit is not None and not all(limit[0] <= v <= limit[1] for v in vals):
+            raise InputRejected("out_of_range", f"{name} at {stamp} ns: {vals} outside {limit}")
         last = self._last.get(name)
         dr_input = isinstance(msg, SpeedLog | Heading)
         if last is not None and stamp < last:
@@ -341,10 +353,15 @@ class LblNavCore:
                 outs.append(self._event(t_k, "rejected", reason="no_depth", detail=f"range to {r.beacon_id}"))
             ranges = []
         ranges = [r for r in ranges if r.beacon_id in self.beacons]
-        if self.bank is None:
-            outs += self._pre_launch(k, t_k, dr, ranges)
-        else:
-            outs += self._post_launch(k, t_k, dr, ranges)
+        try:
+            if self.bank is None:
+                outs += self._pre_launch(k, t_k, dr, ranges)
+            else:
+                outs += self._post_launch(k, t_k, dr, ranges)
+        except (np.linalg.LinAlgError, FloatingPointError) as exc:
+            # [IMPL] a filter that lost positive definiteness is not trusted further: reported, fresh buffer
+            outs += self._reset(t_k, "numerical", f"{type(exc).__name__}: {exc}"[:4000])
+            outs.append(self._fix(t_k, "WAITING", dr))
         return outs
 
     def _pre_launch(self, k: int, t_k: int, dr: DrInterval, ranges: list[_Range]) -> list[Message]:
@@ -364,7 +381,8 @@ class LblNavCore:
             lr = [initiation.LaunchRange(r.beacon_id, *self.beacons[r.beacon_id], r.y_m, r.T_s) for r in ranges]
             res = initiation.launch(lr, self.depth_m, cfg, k, t_k)
             if res.ok:
-                return outs + self._launch(k, t_k, dr, res, len(lr))
+                rows = [self._row("i", k, r, self.depth_m) for r in ranges]
+                return outs + self._launch(k, t_k, dr, res, len(lr), rows)
             outs.append(self._event(t_k, "launch_postponed", reason=res.reason, detail=res.detail))
         if ranges or self.buffer:
             rows = [self._row("s", k, r, self.depth_m) for r in ranges] if ranges and self.depth_m is not None else []
@@ -384,7 +402,9 @@ class LblNavCore:
         outs.append(self._fix(t_k, self.state, dr))
         return outs
 
-    def _launch(self, k: int, t_k: int, dr: DrInterval, res: initiation.LaunchResult, n0: int) -> list[Message]:
+    def _launch(
+        self, k: int, t_k: int, dr: DrInterval, res: initiation.LaunchResult, n0: int, rows: list[Row]
+    ) -> list[Message]:
         cfg = self.cfg
         hyps = [HypothesisFilter(u + 1, c.X0, c.P0, c.A0, c.lnB0) for u, c in enumerate(res.candidates)]
         buffer = self.buffer if (cfg.use_buffered and dr.valid) else []
@@ -395,7 +415,7 @@ class LblNavCore:
             outs.append(
                 self._event(t_k, "buffer_truncated", reason="dr_gap", detail=f"{len(self.buffer)} epochs at launch")
             )
-        self.bank = HypothesisBank(cfg, self.motion, hyps, buffer, dr)
+        self.bank = HypothesisBank(cfg, self.motion, hyps, buffer, dr, rows)
         self.buffer = []
         self.k0, self.launch_stamp_ns = k, t_k
         self.last_range_used_ns = t_k
@@ -431,7 +451,24 @@ class LblNavCore:
         self._decision_lr = d.log_ratio
         if d.kind == "decision":
             self.source, self.accepted = "resolved", d.hypothesis_id
-            return [self._event(t_k, "decision", hypothesis_id=d.hypothesis_id, log10_ratio=d.log_ratio / math.log(10))]
+            detail = ""
+            if d.exact is not None:
+                ekf = self.bank.log_ratio_at_decision
+                detail = f"exact over {d.exact.epochs} epochs"
+                if d.exact.log_ratio_robust is not None:
+                    detail += f"; robust log10 {d.exact.log_ratio_robust / math.log(10):.3f}"
+                if ekf is not None:
+                    detail += f"; ekf log10 {ekf / math.log(10):.3f}"
+            return [
+                self._event(
+                    t_k,
+                    "decision",
+                    reason="exact" if d.exact is not None else "ekf",
+                    detail=detail,
+                    hypothesis_id=d.hypothesis_id,
+                    log10_ratio=d.log_ratio / math.log(10),
+                )
+            ]
         self.source, self.accepted = "merged", None
         return [self._event(t_k, "merge", log10_ratio=d.log_ratio / math.log(10))]
 

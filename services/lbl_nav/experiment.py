@@ -134,9 +134,10 @@ def trace_from_outputs(
 
 # ---- Monte-Carlo sets of the digest's scenarios (section 4.2) --------------------------------------------------------
 def scenario_config(name: str, **overrides: object) -> LblNavConfig:
-    """Core configuration of a scenario: S1/S3/S4 the paper's simulation values (N = 360), S2 the field values
+    """Core configuration of a scenario (the paper's rule (6), ``preset: paper``, unless overridden): S1/S3/S4 the
+    paper's simulation values (N = 360), S2 the field values
     (N = 97, no heading or current error: sigma_dK = sigma_dU = 0). ``validate_outputs`` is off for speed."""
-    base: dict[str, object] = {"N_max": 360, "validate_outputs": False}
+    base: dict[str, object] = {"N_max": 360, "validate_outputs": False, "preset": "paper"}
     if name == "S2":
         base.update(N_max=97, sigma_dK_rad=0.0, sigma_dU_mps=0.0)
     base.update(overrides)

@@ -16,6 +16,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from .config import LblNavConfig
+from .decision import ExactCheck, ExactDecision, evidence_epoch, start_of
 from .models import AUG, COPY_IDX, F64, IDC, IDK, IX, IY, SDK, DrInterval, MotionModel, Row, noise_cov
 
 ROW_LOG_MAX = 20_000
@@ -231,6 +232,7 @@ class StepReport:
     rejected_current: int = 0
     rejected_buffered: int = 0
     rejected_keys: list[str] = field(default_factory=list)
+    kept_current: list[Row] = field(default_factory=list)
 
 
 @dataclass
@@ -238,6 +240,7 @@ class Decision:
     kind: str  # "decision" or "merge"
     hypothesis_id: int | None
     log_ratio: float
+    exact: ExactCheck | None = None
 
 
 class HypothesisBank:
@@ -250,6 +253,7 @@ class HypothesisBank:
         hyps: list[HypothesisFilter],
         buffer: list[BufferedEpoch],
         launch_dr: DrInterval | None,
+        launch_rows: list[Row] | None = None,
     ) -> None:
         self.cfg = cfg
         self.motion = motion
@@ -261,6 +265,15 @@ class HypothesisBank:
         self.gate = float(chi2.ppf(cfg.gate_prob, 1))
         self.decided: int | None = None
         self.merged = False
+        #: the EKF's ln dp when a decision was made (the exact rule decides on another value)
+        self.log_ratio_at_decision: float | None = None
+        #: the honest preset's exact evidence of the whole record (two hypotheses only)
+        self.exact: ExactDecision | None = None
+        if cfg.decision_statistic == "exact" and len(self.hyps) == 2 and launch_dr is not None:
+            self.exact = ExactDecision(
+                cfg,
+                [evidence_epoch(e.dr, e.rows) for e in self.buffer] + [evidence_epoch(launch_dr, launch_rows or [])],
+            )
         if self.N > 0:
             for h in self.hyps:
                 h.augment()
@@ -339,6 +352,8 @@ class HypothesisBank:
                 Phi, b, Q = fwd or self.motion.forward(dr, float(h.X[IDK]))
                 h.predict_forward(Phi, b, Q)
             self.update_all(list(rows), report)
+        if self.exact is not None and len(self.hyps) == 2:
+            self.exact.append(dr, report.kept_current)
         return report
 
     # ---- common gating and update ----------------------------------------------------------------------------
@@ -365,6 +380,7 @@ class HypothesisBank:
             if row.block == "i":
                 if keep[r]:
                     report.used_current += 1
+                    report.kept_current.append(row)
                 else:
                     report.rejected_current += 1
             elif not keep[r]:
@@ -402,6 +418,7 @@ class HypothesisBank:
                 report.rejected_current += 1
             else:
                 report.used_current += 1
+                report.kept_current.append(row)
         elif outlier_everywhere:
             report.rejected_buffered += 1
         if outlier_everywhere:
@@ -435,7 +452,11 @@ class HypothesisBank:
         if lr is None:
             return None
         thr = self.cfg.ln_threshold
-        if lr >= thr or lr <= -thr:
+        if self.cfg.decision_statistic == "exact":
+            d = self._decide_exact(lr)
+            if d is not None:
+                return d
+        elif lr >= thr or lr <= -thr:
             keep = self.hyps[0] if lr >= thr else self.hyps[1]
             self.hyps = [keep]
             self.decided = keep.hyp_id
@@ -444,8 +465,25 @@ class HypothesisBank:
         if (x1[IX] - x2[IX]) ** 2 + (x1[IY] - x2[IY]) ** 2 < self.cfg.r_merge_m**2:
             self.hyps = [merge(self.hyps[0], self.hyps[1], lr)]
             self.merged = True
+            self.exact = None
             return Decision("merge", None, lr)
         return None
+
+    def _decide_exact(self, ekf_lr: float) -> Decision | None:
+        """Honest preset: rule (6) on the exact evidence (``decision.ExactDecision``), evaluated when the EKF's
+        ratio is near the threshold. Without a usable record (rows that are not ranges) no decision is made."""
+        ex = self.exact
+        if ex is None or not ex.due(ekf_lr):
+            return None
+        check = ex.check((start_of(self.hyps[0].X), start_of(self.hyps[1].X)), ekf_lr)
+        self.log_ratio_at_decision = ekf_lr
+        if check is None or check.accepted is None:
+            return None
+        keep = self.hyps[0] if check.accepted == 1 else self.hyps[1]
+        self.hyps = [keep]
+        self.decided = keep.hyp_id
+        self.exact = None
+        return Decision("decision", keep.hyp_id, check.log_ratio, check)
 
 
 def merge(h1: HypothesisFilter, h2: HypothesisFilter, log_ratio: float) -> HypothesisFilter:

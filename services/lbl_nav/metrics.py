@@ -161,3 +161,12 @@ def aggregate_runs(per_run: Sequence[dict[str, Any]], horizon_s: float | None = 
 def aggregate(traces: Sequence[RunTrace], t_grid: Sequence[float], horizon_s: float | None = None) -> dict[str, Any]:
     """``aggregate_runs`` of the traces' ``run_metrics`` on ``t_grid``."""
     return aggregate_runs([run_metrics(tr, t_grid) for tr in traces], horizon_s)
+
+
+def binomial_upper95(k: int, n: int) -> float:
+    """One-sided 95 % Clopper-Pearson upper bound of a rate observed k times in n trials (1 if k >= n)."""
+    from scipy.stats import beta
+
+    if n <= 0 or k >= n:
+        return 1.0
+    return float(beta.ppf(0.95, k + 1, n - k))

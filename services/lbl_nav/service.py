@@ -20,7 +20,8 @@ core's; the adapter adds the transport, the key names and the reporting. Keys (`
 **Refused** (counted in ``rejected_by_reason``; the core's state is untouched): the codec's reasons
 (``non_finite`` for a NaN or infinite field, ``out_of_bounds`` for a negative or zero range, ``bad_msgpack``,
 ``missing_field``, ...) and the core's ``unknown_beacon``, ``stamp_backwards``, ``late``, ``duplicate``,
-``off_epoch``, ``impossible_range`` (a range below the vertical separation or beyond reception, e.g. a 10 km
+``off_epoch``, ``out_of_range`` (a log speed, depth or current beyond physical limits), ``impossible_range`` (a range
+below the vertical separation or beyond reception, e.g. a 10 km
 outlier), ``range_rate`` (pre-launch range-rate gate), ``non_finite``, ``non_positive``, ``missing_range``,
 ``bad_beacon_table``.
 
