@@ -186,10 +186,8 @@ def _story(
         ax.plot([d["start"], d.get("confirmed", d["end"])], [row, row], color="0.7", lw=3)
         if "confirmed" in d:
             ax.plot([d["confirmed"], d["end"]], [row, row], color="tab:blue", lw=3)
-            ax.annotate(
-                track_target.get(tid, "false?"), (d["end"], row), fontsize=6, xytext=(2, -2), textcoords="offset points"
-            )
-    ax.set_yticks(range(len(shown)), [str(t) for t in shown], fontsize=6)
+            ax.annotate(track_target.get(tid, "false?"), (d["end"], row), xytext=(3, -3), textcoords="offset points")
+    ax.set_yticks(range(len(shown)), [str(t) for t in shown], fontsize=9 if len(shown) <= 30 else 6)
     ax.set_ylabel("track id")
     ax.set_xlabel("t, s")
     ax.set_title("track lifetimes (grey: tentative, blue: confirmed; label: target followed)")
