@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.axes import Axes
+from matplotlib.figure import Figure as MplFigure
 
 from shared.foxglove.frames import F64
 
@@ -167,6 +168,17 @@ def plan_figure(
     title: str = "Plan view",
 ) -> Figure:
     """The overview and one zoomed panel per truth track (module doc); truth lines, estimate dots, 3σ ellipses."""
+    fig, _, caption, margins = plan_axes(truths, estimates, points)
+    return render(fig, title, caption, **margins)
+
+
+def plan_axes(
+    truths: dict[str, F64],
+    estimates: dict[str, tuple[F64, F64 | None]],
+    points: dict[str, F64] | None = None,
+) -> tuple[MplFigure, list[tuple[Axes, Box | None]], str, dict[str, float]]:
+    """The plan figure drawn but not rendered: (figure, its panels with the track box each zooms to — None for
+    the overview —, caption, the margins to render it with)."""
     points = points or {}
     names = [t for t, xy in truths.items() if len(xy)]
     palette = plt.rcParams["axes.prop_cycle"].by_key()["color"]
@@ -209,8 +221,11 @@ def plan_figure(
     fig_h = height * rows + margins["bottom_in"]
     fig, axs = plt.subplots(rows, cols, figsize=(FIG_WIDTH_IN, fig_h), squeeze=False)
     apply_margins(fig, **margins)  # before drawing: the zoomed panels fit their limits to their shape
+    drawn: list[tuple[Axes, Box | None]] = []
     for i, (box, ptitle) in enumerate(panels):
-        _panel(axs[i // cols][i % cols], truths, estimates, points, colors, box, ptitle, (FIG_WIDTH_IN, fig_h))
+        ax = axs[i // cols][i % cols]
+        _panel(ax, truths, estimates, points, colors, box, ptitle, (FIG_WIDTH_IN, fig_h))
+        drawn.append((ax, box))
     for j in range(n, rows * cols):
         axs[j // cols][j % cols].set_visible(False)
     handles, labels = axs[0][0].get_legend_handles_labels()
@@ -219,11 +234,11 @@ def plan_figure(
     caption = "truth: lines; estimates: dots with 3σ covariance ellipses (every k-th); ▲ fixed points"
     if len(names) > MAX_TRACK_PANELS:
         caption += f"; zoomed panels for the first {MAX_TRACK_PANELS} of {len(names)} tracks"
-    return render(fig, title, caption, **margins)
+    return fig, drawn, caption, margins
 
 
 def _km(metres: float) -> str:
     return f"{metres / 1000:.3g} km" if metres >= 2000 else f"{metres:.3g} m"
 
 
-__all__ = ["MAX_TRACK_PANELS", "Box", "owner_of", "plan_figure"]
+__all__ = ["MAX_TRACK_PANELS", "Box", "owner_of", "plan_axes", "plan_figure"]
