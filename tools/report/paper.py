@@ -88,8 +88,12 @@ def _lbl_decision(head: dict[str, Any], m: dict[str, Any] | None) -> Iterator[tu
     correct = head.get("decision_correct")
     decision = head.get("decision")
     if correct is None:
-        why = "no decision between the two hypotheses" if decision is None else f"decision: {decision}"
-        yield "", why, NO_DATA, "the true hypothesis is judged only for a resolved pair (nearest the truth at launch)"
+        if decision is None:
+            yield "", "no decision between the two hypotheses", NO_DATA, ""
+        elif str(decision).startswith("resolved"):
+            yield "", f"decision: {decision}", NO_DATA, "no truth at launch to tell which hypothesis was the true one"
+        else:
+            yield "", f"decision: {decision}", NO_DATA, "no choice between two hypotheses to judge"
         return
     yield "", "the true one" if correct else "the FALSE one", PASS if correct else OUTSIDE, ""
 

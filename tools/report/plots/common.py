@@ -355,12 +355,13 @@ def standard_figures(
     points: dict[str, F64] | None = None,
     axes_names: tuple[str, str] = ("east", "north"),
     what: str = "",
+    plan_focus: dict[str, F64] | None = None,
 ) -> tuple[list[Figure], dict[str, Any]]:
-    """Plan views (the scene and each track zoomed), horizontal error components with ±3σ per platform, NEES with
-    its χ² band; plus their headline numbers."""
+    """Plan views (the scene and each track zoomed — to ``plan_focus`` of a track if given), horizontal error
+    components with ±3σ per platform, NEES with its χ² band; plus their headline numbers."""
     from .plan import plan_figure
 
-    figs: list[Figure] = [plan_figure(plan_truths, plan_estimates, points, title=f"Plan view{what}")]
+    figs: list[Figure] = [plan_figure(plan_truths, plan_estimates, points, title=f"Plan view{what}", focus=plan_focus)]
     head: dict[str, Any] = {}
     usable = [s for s in series if s.t_s.size]
     if not usable:

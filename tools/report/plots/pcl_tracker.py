@@ -123,8 +123,14 @@ def _section(data: RunData, source: str, entry: dict[str, Any] | None) -> Sectio
     points = {"receiver": np.zeros((1, 2))}
     if par.get("tx") is not None:
         points["illuminator"] = np.asarray([par["tx"][:2]], dtype=np.float64)
+    # each target's panel zooms to where it was tracked (a target flies on for hundreds of km after)
+    focus = {
+        name: np.array([xy for row in rows for xy in (row[1][:2], row[2][:2])], dtype=np.float64)
+        for name, rows in per_target.items()
+        if rows
+    }
     figs, head = standard_figures(
-        series[:MAX_ERROR_PANELS], plan_truths=truths, plan_estimates=plan, points=points, what=""
+        series[:MAX_ERROR_PANELS], plan_truths=truths, plan_estimates=plan, points=points, plan_focus=focus
     )
     sec.figures += figs
     if len(series) > MAX_ERROR_PANELS:

@@ -166,9 +166,11 @@ def plan_figure(
     points: dict[str, F64] | None = None,
     *,
     title: str = "Plan view",
+    focus: dict[str, F64] | None = None,
 ) -> Figure:
-    """The overview and one zoomed panel per truth track (module doc); truth lines, estimate dots, 3σ ellipses."""
-    fig, _, caption, margins = plan_axes(truths, estimates, points)
+    """The overview and one zoomed panel per truth track (module doc); truth lines, estimate dots, 3σ ellipses.
+    ``focus``: per track, the points its panel zooms to instead of the whole truth (e.g. where it was tracked)."""
+    fig, _, caption, margins = plan_axes(truths, estimates, points, focus)
     return render(fig, title, caption, **margins)
 
 
@@ -176,10 +178,12 @@ def plan_axes(
     truths: dict[str, F64],
     estimates: dict[str, tuple[F64, F64 | None]],
     points: dict[str, F64] | None = None,
+    focus: dict[str, F64] | None = None,
 ) -> tuple[MplFigure, list[tuple[Axes, Box | None]], str, dict[str, float]]:
     """The plan figure drawn but not rendered: (figure, its panels with the track box each zooms to — None for
     the overview —, caption, the margins to render it with)."""
     points = points or {}
+    focus = focus or {}
     names = [t for t, xy in truths.items() if len(xy)]
     palette = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     colors: dict[str, str] = {t: palette[i % len(palette)] for i, t in enumerate(names)}
@@ -193,8 +197,10 @@ def plan_axes(
             k += 1
     boxes: dict[str, Box] = {}
     for t in names[:MAX_TRACK_PANELS]:
-        box = Box.of(truths[t])
-        assert box is not None
+        box = Box.of(focus[t]) if t in focus and len(focus[t]) else None
+        box = box or Box.of(truths[t])
+        if box is None:  # no finite point
+            continue
         for e, (xy, _) in estimates.items():
             if owner_of(e, names) == t and len(xy):
                 box = box.union(Box.of(xy, robust=True))
@@ -232,6 +238,8 @@ def plan_axes(
     if labels:
         fig.legend(handles, labels, loc="lower center", ncol=min(4, len(labels)), frameon=False, markerscale=2)
     caption = "truth: lines; estimates: dots with 3σ covariance ellipses (every k-th); ▲ fixed points"
+    if focus:
+        caption += "; a track's own panel zooms to where it was estimated"
     if len(names) > MAX_TRACK_PANELS:
         caption += f"; zoomed panels for the first {MAX_TRACK_PANELS} of {len(names)} tracks"
     return fig, drawn, caption, margins
