@@ -42,6 +42,7 @@ COPY pyproject.toml README.md ./
 COPY schemas ./schemas
 COPY shared ./shared
 COPY services ./services
+COPY tools ./tools
 RUN pip install -q --no-deps --no-build-isolation . \
     && pip check \
     && rm -rf build ./*.egg-info

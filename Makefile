@@ -12,7 +12,7 @@ UV     := $(VENV)-tools/bin/uv
 # The install is the lock file's exact versions, every file checked against its hash, then the project itself
 # (editable, no dependency resolution, built with the locked setuptools). `make lock` refreshes the lock.
 $(STAMP): pyproject.toml $(LOCK)
-	rm -rf $(VENV)
+	rm -rf $(VENV) *.egg-info
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --require-hashes --no-deps -r $(LOCK)
 	$(PY) -m pip install -q --no-deps --no-build-isolation -e .

@@ -11,6 +11,17 @@ files back for the player's MCAP replay, the tests and the report tool:
 * :func:`decode_record` turns a record back into the strict pydantic model.
 * :func:`count_by_topic` counts messages per topic (channel topic = Zenoh key expression).
 * :func:`recording_files` lists the (rotated) files of a recording directory in recording order.
+* :func:`scan` reads a whole file once and summarises it (topics with counts and data-clock span, schemas,
+  compression, metadata, attachments, finalised or truncated): what ``fixstream info`` prints.
+* :func:`recover` rewrites a file cut short by a crash as a finalised one (summary, indexes, footer), so that
+  readers that need the footer (the ``mcap`` package's ``make_reader``, Foxglove) open it.
+* :class:`Rejected` is a payload the recorder could not decode or validate, kept byte for byte on the topic
+  ``fixstream/rejected/<original key>`` (:func:`encode_rejected`, :func:`decode_rejected`).
+
+**Time fields** (docs/recorder.md): ``log_time`` = ``publish_time`` = the message's ``header.stamp_ns``, the data
+clock (the Rust MCAP writer of ``foxglove-sdk`` writes the same value in both). A rejected payload carries the
+stamp of its header when it has a readable one, else the data clock of the last valid message. The wall time a
+sample arrived is kept only for rejected payloads (``rx_time_ns`` in their envelope).
 
 Anything that is not a readable MCAP file raises :class:`McapReadError` naming the file and what is
 wrong with it: a missing file, an empty file, a file that does not start with the MCAP magic, a file
@@ -27,6 +38,8 @@ bounds checks so that a malformed record is reported, never half-read.
 
 from __future__ import annotations
 
+import base64
+import json
 import os
 import struct
 import zlib
@@ -34,7 +47,7 @@ from collections import Counter
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 from schemas import MODELS, Message
 
@@ -54,6 +67,8 @@ _OP_SCHEMA = 0x03
 _OP_CHANNEL = 0x04
 _OP_MESSAGE = 0x05
 _OP_CHUNK = 0x06
+_OP_ATTACHMENT = 0x09
+_OP_METADATA = 0x0C
 _OP_DATA_END = 0x0F
 _RECORD_PREFIX = 9  # opcode (1 byte) + length (8 bytes)
 
@@ -78,8 +93,8 @@ class McapReadError(ValueError):
 class Record:
     """One message of a recording, with what is needed to decode it.
 
-    Times are nanoseconds: ``log_time_ns`` is when the recorder received the message (wall clock, UNIX
-    epoch), ``publish_time_ns`` is the message's ``header.stamp_ns`` (scenario clock).
+    Times are nanoseconds on the data clock: in a fixstream recording both are the message's ``header.stamp_ns``
+    (see the module doc); files of other writers may put a receive time in ``log_time_ns``.
     """
 
     topic: str
@@ -91,12 +106,15 @@ class Record:
     data: bytes = field(repr=False)
     sequence: int = 0
     channel_metadata: Mapping[str, str] = field(default_factory=dict)
+    #: the schema's data (a JSON Schema for fixstream channels), shared by every record of the schema
+    schema_data: bytes = field(default=b"", repr=False, compare=False)
 
 
 @dataclass(frozen=True)
 class _Schema:
     name: str
     encoding: str
+    data: bytes = b""
 
 
 @dataclass(frozen=True)
@@ -154,8 +172,8 @@ def _parse_schema(body: bytes) -> tuple[int, _Schema]:
     schema_id = c.u16()
     name = c.string()
     encoding = c.string()
-    c.take(c.u32())  # schema data (the JSON Schema); not needed to read messages
-    return schema_id, _Schema(name=name, encoding=encoding)
+    data = c.take(c.u32())  # the JSON Schema
+    return schema_id, _Schema(name=name, encoding=encoding, data=data)
 
 
 def _parse_channel(body: bytes) -> tuple[int, _Channel]:
@@ -186,8 +204,8 @@ def _decompress(compression: str, data: bytes, uncompressed_size: int) -> bytes:
     raise _Malformed(f"unsupported chunk compression {compression!r}")
 
 
-def _chunk_records(body: bytes) -> list[tuple[int, bytes]]:
-    """The (opcode, body) records inside a chunk record, decompressed and CRC-checked."""
+def _chunk_records(body: bytes) -> tuple[str, list[tuple[int, bytes]]]:
+    """The chunk's compression and the (opcode, body) records inside it, decompressed and CRC-checked."""
     c = _Cursor(body)
     c.u64()  # message start time
     c.u64()  # message end time
@@ -210,7 +228,7 @@ def _chunk_records(body: bytes) -> list[tuple[int, bytes]]:
     while not inner.at_end:
         opcode = inner.take(1)[0]
         out.append((opcode, inner.take(inner.u64())))
-    return out
+    return compression, out
 
 
 def _read_exact(f: BinaryIO, n: int) -> bytes:
@@ -237,8 +255,8 @@ def _open(path: Path) -> BinaryIO:
         raise McapReadError(path, f"cannot open: {exc.strerror or exc}", "unreadable") from None
 
 
-def _check_start(path: Path, f: BinaryIO, size: int) -> None:
-    """Magic and header record, or McapReadError."""
+def _check_start(path: Path, f: BinaryIO, size: int) -> tuple[str, str]:
+    """Magic and header record (returns its profile and library), or McapReadError."""
     if size == 0:
         raise McapReadError(path, "empty file (0 bytes), not an MCAP recording", "empty")
     magic = _read_exact(f, len(MAGIC))
@@ -269,8 +287,7 @@ def _check_start(path: Path, f: BinaryIO, size: int) -> None:
         )
     try:
         c = _Cursor(body)
-        c.string()  # profile
-        c.string()  # library
+        return c.string(), c.string()  # profile, library
     except _Malformed as exc:
         raise McapReadError(path, f"corrupt header record: {exc}", "corrupt") from None
 
@@ -283,18 +300,66 @@ def iter_records(path: str | os.PathLike[str]) -> Iterator[Record]:
     :class:`McapReadError` for a missing, empty or non-MCAP file, one truncated inside its header, or a
     complete record that is corrupt (bad chunk compression or CRC, message on an undeclared channel).
     """
+    return (item for item in iter_items(path) if type(item) is Record)
+
+
+@dataclass(frozen=True)
+class MetadataRecord:
+    """An MCAP metadata record: a name and string key/value pairs."""
+
+    name: str
+    metadata: Mapping[str, str]
+
+
+@dataclass(frozen=True)
+class AttachmentRecord:
+    """An MCAP attachment: a named file (e.g. the scenario YAML) kept in the recording."""
+
+    name: str
+    media_type: str
+    log_time_ns: int
+    create_time_ns: int
+    data: bytes = field(repr=False)
+
+
+@dataclass(frozen=True)
+class ChunkSeen:
+    """A complete chunk record (yielded before its messages): where it is and how it is compressed."""
+
+    offset: int
+    length: int
+    compression: str
+
+
+@dataclass
+class _Progress:
+    """How far a pass over the data section got."""
+
+    header: tuple[str, str] = ("", "")  # (profile, library)
+    end: int = 0  # offset after the last complete record
+    footer: bool = False  # the data section ended with DataEnd or a Footer
+
+
+Item = Record | MetadataRecord | AttachmentRecord | ChunkSeen
+
+
+def iter_items(path: str | os.PathLike[str], progress: _Progress | None = None) -> Iterator[Item]:
+    """Messages, metadata, attachments and chunk boundaries of the data section, in file order (see
+    :func:`iter_records` for what is read and what raises). ``progress`` is filled as the pass goes."""
     p = Path(path)
     f = _open(p)
+    progress = progress if progress is not None else _Progress()
     try:
         size = os.fstat(f.fileno()).st_size
-        _check_start(p, f, size)  # eagerly, so a bad file raises here rather than at the first next()
+        progress.header = _check_start(p, f, size)  # eagerly: a bad file raises here, not at the first next()
+        progress.end = f.tell()
     except BaseException:
         f.close()
         raise
-    return _iter_data_section(p, f, size)
+    return _iter_data_section(p, f, size, progress)
 
 
-def _iter_data_section(p: Path, f: BinaryIO, size: int) -> Iterator[Record]:
+def _iter_data_section(p: Path, f: BinaryIO, size: int, progress: _Progress) -> Iterator[Item]:
     with f:
         schemas: dict[int, _Schema] = {}
         channels: dict[int, _Channel] = {}
@@ -310,14 +375,51 @@ def _iter_data_section(p: Path, f: BinaryIO, size: int) -> Iterator[Record]:
             if len(body) < length:
                 return
             if opcode in (_OP_FOOTER, _OP_DATA_END):
+                progress.footer = True
                 return  # the data section is over; the summary holds no messages
             try:
-                records = _chunk_records(body) if opcode == _OP_CHUNK else [(opcode, body)]
-                batch = [r for r in (_apply(op, b, schemas, channels) for op, b in records) if r is not None]
+                batch: list[Item] = []
+                if opcode == _OP_CHUNK:
+                    compression, records = _chunk_records(body)
+                    batch.append(ChunkSeen(offset, _RECORD_PREFIX + length, compression))
+                elif opcode == _OP_METADATA:
+                    batch.append(_parse_metadata(body))
+                    records = []
+                elif opcode == _OP_ATTACHMENT:
+                    batch.append(_parse_attachment(body))
+                    records = []
+                else:
+                    records = [(opcode, body)]
+                batch.extend(r for r in (_apply(op, b, schemas, channels) for op, b in records) if r is not None)
             except _Malformed as exc:
                 what = "chunk" if opcode == _OP_CHUNK else f"record (opcode {opcode:#04x})"
                 raise McapReadError(p, f"corrupt {what} at byte offset {offset}: {exc}", "corrupt") from None
+            progress.end = f.tell()
             yield from batch
+
+
+def _parse_metadata(body: bytes) -> MetadataRecord:
+    c = _Cursor(body)
+    name = c.string()
+    meta = _Cursor(c.take(c.u32()))
+    pairs: dict[str, str] = {}
+    while not meta.at_end:
+        key = meta.string()
+        pairs[key] = meta.string()
+    return MetadataRecord(name, pairs)
+
+
+def _parse_attachment(body: bytes) -> AttachmentRecord:
+    c = _Cursor(body)
+    log_time = c.u64()
+    create_time = c.u64()
+    name = c.string()
+    media_type = c.string()
+    data = c.take(c.u64())
+    crc = c.u32()
+    if crc != 0 and zlib.crc32(body[: c.pos - 4]) != crc:
+        raise _Malformed(f"attachment {name!r}: CRC mismatch")
+    return AttachmentRecord(name, media_type, log_time, create_time, data)
 
 
 def _apply(opcode: int, body: bytes, schemas: dict[int, _Schema], channels: dict[int, _Channel]) -> Record | None:
@@ -354,6 +456,7 @@ def _apply(opcode: int, body: bytes, schemas: dict[int, _Schema], channels: dict
         data=data,
         sequence=sequence,
         channel_metadata=chan.metadata,
+        schema_data=schema.data,
     )
 
 
@@ -401,6 +504,228 @@ def count_by_topic(path: str | os.PathLike[str]) -> dict[str, int]:
     return dict(Counter(r.topic for r in iter_records(path)))
 
 
+# ----- the rejected-payload channel ------------------------------------------------------------------------
+
+#: topic prefix of rejected payloads: ``fixstream/rejected/<original key>``
+REJECTED_PREFIX = "fixstream/rejected/"
+#: schema name of the rejected-payload envelope (not a ``fixstream.<Model>``: no model decodes it)
+REJECTED_SCHEMA = "fixstream_raw.RejectedPayload"
+#: its JSON Schema (Foxglove shows the envelope; ``payload`` is the original bytes, base64)
+REJECTED_JSON_SCHEMA: dict[str, Any] = {
+    "title": REJECTED_SCHEMA,
+    "description": "A payload that failed decoding or validation, kept byte for byte so a replay puts it back.",
+    "type": "object",
+    "properties": {
+        "key": {"type": "string", "description": "the Zenoh key it arrived on"},
+        "encoding": {"type": "string", "description": "the Zenoh encoding it arrived with"},
+        "reason": {"type": "string", "description": "why it was rejected (a reason code, as in the diagnostics)"},
+        "detail": {"type": "string", "description": "what exactly was wrong"},
+        "size": {"type": "integer", "description": "payload size, bytes"},
+        "rx_time_ns": {"type": "integer", "description": "wall time it arrived, ns since the UNIX epoch"},
+        "payload": {"type": "string", "contentEncoding": "base64", "description": "the payload bytes"},
+    },
+    "required": ["key", "encoding", "reason", "payload"],
+}
+
+
+@dataclass(frozen=True)
+class Rejected:
+    """A payload that failed decoding or validation, as it arrived."""
+
+    key: str
+    encoding: str
+    reason: str
+    detail: str
+    payload: bytes = field(repr=False)
+    rx_time_ns: int = 0
+
+    @property
+    def topic(self) -> str:
+        return REJECTED_PREFIX + self.key
+
+
+def encode_rejected(r: Rejected) -> bytes:
+    """The JSON envelope of a rejected payload (message data on its ``fixstream/rejected/<key>`` channel)."""
+    return json.dumps(
+        {
+            "key": r.key,
+            "encoding": r.encoding,
+            "reason": r.reason,
+            "detail": r.detail,
+            "size": len(r.payload),
+            "rx_time_ns": r.rx_time_ns,
+            "payload": base64.b64encode(r.payload).decode("ascii"),
+        },
+        separators=(",", ":"),
+    ).encode()
+
+
+def is_rejected(record: Record) -> bool:
+    return record.schema_name == REJECTED_SCHEMA
+
+
+def decode_rejected(record: Record) -> Rejected:
+    """The rejected payload a record of the rejected channel holds; McapReadError if it is not one."""
+    if not is_rejected(record):
+        raise McapReadError(record.topic, f"schema {record.schema_name!r} is not {REJECTED_SCHEMA}", "unknown_schema")
+    try:
+        doc = json.loads(record.data)
+        return Rejected(
+            key=str(doc["key"]),
+            encoding=str(doc["encoding"]),
+            reason=str(doc["reason"]),
+            detail=str(doc.get("detail", "")),
+            payload=base64.b64decode(doc["payload"], validate=True),
+            rx_time_ns=int(doc.get("rx_time_ns", 0)),
+        )
+    except (ValueError, KeyError, TypeError) as exc:
+        raise McapReadError(record.topic, f"bad rejected-payload envelope: {exc}", "invalid_message") from None
+
+
+# ----- a whole file at once: fixstream info, fixstream info --recover --------------------------------------
+
+
+@dataclass
+class TopicStats:
+    """One topic of a recording: its schema, how many messages, and their span on the data clock."""
+
+    schema_name: str
+    message_encoding: str
+    count: int = 0
+    first_ns: int = 0
+    last_ns: int = 0
+
+    @property
+    def rate_hz(self) -> float:
+        """Messages per second of data clock (0 for fewer than two messages or no span)."""
+        span = (self.last_ns - self.first_ns) * 1e-9
+        return (self.count - 1) / span if self.count > 1 and span > 0 else 0.0
+
+
+@dataclass
+class Scan:
+    """What one pass over a recording found (:func:`scan`)."""
+
+    path: Path
+    size: int
+    profile: str
+    library: str
+    #: the data section ended properly and the file ends with the MCAP magic (summary and footer written)
+    finalised: bool
+    #: bytes after the last complete record (what a crash left half-written); 0 for a finalised file
+    tail_bytes: int
+    chunks: int
+    compression: Counter[str]
+    topics: dict[str, TopicStats]
+    metadata: list[MetadataRecord]
+    attachments: list[AttachmentRecord]
+
+    @property
+    def messages(self) -> int:
+        return sum(t.count for t in self.topics.values())
+
+    @property
+    def start_ns(self) -> int:
+        return min((t.first_ns for t in self.topics.values() if t.count), default=0)
+
+    @property
+    def end_ns(self) -> int:
+        return max((t.last_ns for t in self.topics.values() if t.count), default=0)
+
+
+def scan(path: str | os.PathLike[str]) -> Scan:
+    """Read a recording once (finalised or cut short) and summarise it; McapReadError as :func:`iter_records`."""
+    p = Path(path)
+    progress = _Progress()
+    topics: dict[str, TopicStats] = {}
+    metadata: list[MetadataRecord] = []
+    attachments: list[AttachmentRecord] = []
+    compression: Counter[str] = Counter()
+    chunks = 0
+    for item in iter_items(p, progress):
+        if type(item) is Record:
+            t = topics.get(item.topic)
+            if t is None:
+                t = topics[item.topic] = TopicStats(item.schema_name, item.message_encoding, 0, item.log_time_ns, 0)
+            t.count += 1
+            t.first_ns = min(t.first_ns, item.log_time_ns)
+            t.last_ns = max(t.last_ns, item.log_time_ns)
+        elif type(item) is ChunkSeen:
+            chunks += 1
+            compression[item.compression or "none"] += 1
+        elif type(item) is MetadataRecord:
+            metadata.append(item)
+        elif type(item) is AttachmentRecord:
+            attachments.append(item)
+    size = p.stat().st_size
+    finalised = progress.footer and _ends_with_magic(p, size)
+    return Scan(
+        path=p,
+        size=size,
+        profile=progress.header[0],
+        library=progress.header[1],
+        finalised=finalised,
+        tail_bytes=0 if progress.footer else size - progress.end,
+        chunks=chunks,
+        compression=compression,
+        topics=topics,
+        metadata=metadata,
+        attachments=attachments,
+    )
+
+
+def _ends_with_magic(p: Path, size: int) -> bool:
+    if size < 2 * len(MAGIC):
+        return False
+    with p.open("rb") as f:
+        f.seek(size - len(MAGIC))
+        return f.read(len(MAGIC)) == MAGIC
+
+
+def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> Scan:
+    """Rewrite ``src`` (typically cut short by a crash) as a finalised MCAP file ``dst``: every message of its
+    complete chunks with its times and sequence, its schemas, channels, metadata and attachments, then the summary
+    and footer. ``dst`` must not exist. Returns the scan of the new file."""
+    from mcap.writer import CompressionType, Writer
+
+    src_p, dst_p = Path(src), Path(dst)
+    first = scan(src_p)  # raises McapReadError for a file that is not a readable recording
+    kinds = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4}
+    compression = kinds.get(first.compression.most_common(1)[0][0] if first.compression else "", CompressionType.ZSTD)
+    fd = os.open(dst_p, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o644)
+    with os.fdopen(fd, "wb") as out:
+        w = Writer(out, compression=compression)
+        w.start(profile=first.profile, library=first.library or "fixstream-recover")
+        schema_ids: dict[tuple[str, str], int] = {}
+        channel_ids: dict[tuple[str, str, str], int] = {}
+        for item in iter_items(src_p):
+            if type(item) is Record:
+                skey = (item.schema_name, item.schema_encoding)
+                sid = schema_ids.get(skey)
+                if sid is None:
+                    sid = (
+                        0
+                        if not item.schema_name
+                        else w.register_schema(item.schema_name, item.schema_encoding, item.schema_data)
+                    )
+                    schema_ids[skey] = sid
+                ckey = (item.topic, item.schema_name, item.message_encoding)
+                cid = channel_ids.get(ckey)
+                if cid is None:
+                    cid = channel_ids[ckey] = w.register_channel(
+                        item.topic, item.message_encoding, sid, dict(item.channel_metadata)
+                    )
+                w.add_message(cid, item.log_time_ns, item.data, item.publish_time_ns, item.sequence)
+            elif type(item) is MetadataRecord:
+                w.add_metadata(item.name, dict(item.metadata))
+            elif type(item) is AttachmentRecord:
+                w.add_attachment(item.create_time_ns, item.log_time_ns, item.name, item.media_type, item.data)
+        w.finish()
+        out.flush()
+        os.fsync(out.fileno())
+    return scan(dst_p)
+
+
 def recording_files(directory: str | os.PathLike[str], prefix: str = "") -> list[Path]:
     """The ``*.mcap`` files of a directory (optionally only ``<prefix>_*``), in recording order.
 
@@ -414,13 +739,28 @@ __all__ = [
     "ENCODING_METADATA_KEY",
     "MAGIC",
     "MESSAGE_ENCODING",
+    "REJECTED_JSON_SCHEMA",
+    "REJECTED_PREFIX",
+    "REJECTED_SCHEMA",
     "SCHEMA_ENCODING",
     "SCHEMA_PREFIX",
+    "AttachmentRecord",
+    "ChunkSeen",
     "McapReadError",
+    "MetadataRecord",
     "Record",
+    "Rejected",
+    "Scan",
+    "TopicStats",
     "count_by_topic",
     "decode_record",
+    "decode_rejected",
+    "encode_rejected",
+    "is_rejected",
+    "iter_items",
     "iter_records",
     "model_of",
     "recording_files",
+    "recover",
+    "scan",
 ]

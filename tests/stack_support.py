@@ -27,7 +27,7 @@ from schemas import Diagnostic, Message, ScenarioMarker
 from services.player.scenario import Scenario
 from services.player.timeline import marker, scenario_events
 from shared import codec, keys
-from shared.mcap_io import decode_record, iter_records, recording_files
+from shared.mcap_io import REJECTED_PREFIX, decode_record, iter_records, recording_files
 from shared.service import Output, Service
 from shared.session import open_session
 from shared.settings import ZenohSettings
@@ -160,6 +160,8 @@ def recorded_by_topic(recordings: Path) -> dict[str, list[Message]]:
     by_topic: dict[str, list[Message]] = {}
     for f in files:
         for rec in iter_records(f):
+            if rec.topic.startswith(REJECTED_PREFIX):
+                continue  # payloads that failed validation, kept as raw bytes (not messages)
             by_topic.setdefault(rec.topic, []).append(decode_record(rec))
     return by_topic
 

@@ -231,7 +231,12 @@ def test_a_fuzz_campaign_leaves_every_service_alive_counted_bounded_and_its_next
             for key, msgs in by_key.items():
                 live = [m for m in recorded.get(key, []) if not isinstance(m, Diagnostic)]
                 got, want = _canonical(without_source_seq(live)), _canonical(without_source_seq(msgs))
-                assert got == want, (compose_name, key, len(live), len(msgs))
+                assert got == want, (
+                    compose_name,
+                    key,
+                    [m.header.stamp_ns for m in live],
+                    [m.header.stamp_ns for m in msgs],
+                )
     finally:
         client.close()
         rc = stack.stop()

@@ -11,7 +11,16 @@ from mcap.writer import CompressionType, Writer
 from samples import EXAMPLES
 
 from schemas.export import json_schema
-from shared.mcap_io import MAGIC, McapReadError, Record, count_by_topic, decode_record, iter_records
+from shared.mcap_io import (
+    MAGIC,
+    McapReadError,
+    Record,
+    count_by_topic,
+    decode_record,
+    iter_records,
+    recover,
+    scan,
+)
 
 MODELS_USED = ("Depth", "Heading", "Fix", "Truth")
 PER_CHUNK = 10
@@ -200,3 +209,43 @@ def test_decode_record_rejects_bad_json_and_unknown_schema() -> None:
     unknown = Record(**{**good.__dict__, "schema_name": "fixstream.NoSuchModel"})
     with pytest.raises(McapReadError, match="no model named 'NoSuchModel'"):
         decode_record(unknown)
+
+
+def test_scan_and_recover_a_file_cut_inside_its_last_chunk(tmp_path: Path) -> None:
+    """scan() tells finalised from truncated and counts what is readable; recover() writes a finalised file that the
+    official reader reads message for message (times and sequence kept), metadata and attachments included."""
+    full = tmp_path / "full.mcap"
+    sent = write_file(full)
+    spans = chunk_spans(full)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(full.read_bytes()[: (spans[2][0] + spans[2][1]) // 2])
+    whole, part = scan(full), scan(cut)
+    assert whole.finalised and whole.tail_bytes == 0 and whole.messages == len(sent) and whole.chunks == CHUNKS
+    assert not part.finalised and part.tail_bytes == cut.stat().st_size - spans[2][0]
+    assert part.messages == 2 * PER_CHUNK and dict(part.compression) == {"zstd": 2}
+    assert part.start_ns == 5_000 and part.end_ns == 5_000 + 2 * PER_CHUNK - 1
+    out = tmp_path / "recovered.mcap"
+    again = recover(cut, out)
+    assert again.finalised and again.messages == part.messages
+    with out.open("rb") as f:
+        got = [(c.topic, m.log_time, m.publish_time, m.sequence, m.data) for _, c, m in make_reader(f).iter_messages()]
+    with full.open("rb") as f:
+        want = [(c.topic, m.log_time, m.publish_time, m.sequence, m.data) for _, c, m in make_reader(f).iter_messages()]
+    assert got == want[: 2 * PER_CHUNK]
+    with pytest.raises(FileExistsError):
+        recover(cut, out)  # never overwrites
+
+
+def test_metadata_and_attachments_are_read_in_file_order(tmp_path: Path) -> None:
+    path = tmp_path / "meta.mcap"
+    with path.open("wb") as f:
+        w = Writer(f)
+        w.start()
+        w.add_metadata("fixstream.run", {"scenario": "s", "seed": "3"})
+        w.add_attachment(create_time=1, log_time=2, name="scenario/s.yaml", media_type="application/yaml", data=b"a: 1")
+        w.finish()
+    info = scan(path)
+    assert [(m.name, dict(m.metadata)) for m in info.metadata] == [("fixstream.run", {"scenario": "s", "seed": "3"})]
+    assert [(a.name, a.media_type, a.data, a.log_time_ns) for a in info.attachments] == [
+        ("scenario/s.yaml", "application/yaml", b"a: 1", 2)
+    ]

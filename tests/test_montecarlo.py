@@ -22,7 +22,7 @@ from services.player.scenario import ScenarioError, load_scenario, parse_scenari
 from services.player.sensor_stats import error_series
 from services.player.simulators import Event
 from services.player.timeline import build, player_source, scenario_events, stamp
-from shared import codec, keys
+from shared import codec, keys, plugins
 from tools import montecarlo
 
 
@@ -99,10 +99,12 @@ def fake_estimator() -> Iterator[str]:
     mc.aggregate = _fake_aggregate  # type: ignore[attr-defined]
     mc.Params = _FakeParams  # type: ignore[attr-defined]
     sys.modules[name], sys.modules[f"{name}.mc"] = pkg, mc
+    plugins.register(plugins.Plugin(name="fake_mc_est", mc={"fake_mc_est": f"{name}.mc"}))  # = an entry point
     try:
         yield "fake_mc_est"
     finally:
         del sys.modules[name], sys.modules[f"{name}.mc"]
+        plugins.plugins().pop("fake_mc_est")
 
 
 def test_estimator_plugins_get_the_player_events_and_their_params(fake_estimator: str) -> None:
@@ -124,5 +126,5 @@ def test_estimator_plugins_get_the_player_events_and_their_params(fake_estimator
 def test_an_estimator_without_an_mc_plugin_is_a_clear_error() -> None:
     doc = _small()
     doc["estimators"] = [{"kind": "player"}]  # a services/ package with no mc.py
-    with pytest.raises(montecarlo.MonteCarloError, match=r"no Monte-Carlo plugin \(services/player/mc.py\)"):
+    with pytest.raises(montecarlo.MonteCarloError, match=r"'player' has no Monte-Carlo plugin"):
         montecarlo.run_montecarlo(parse_scenario(doc, "mc"), 1, workers=1, progress=False)

@@ -118,7 +118,7 @@ def test_rate_paces_by_the_data_stamps(router: str, collector: Collector, tmp_pa
     span = arrivals[-1] - arrivals[0]  # 2 s of data at 10x real time: 0.2 s
     assert 0.15 <= span <= 5.0, span
     # the first half of the data arrives in roughly the first half of the span
-    assert arrivals[10] - arrivals[0] >= 0.07
+    assert arrivals[10] - arrivals[0] >= 0.05  # half of the 0.1 s it should take: paced, not flushed at once
 
 
 def _token_scenario(tmp_path: Path, name: str, timeout_s: float) -> Path:

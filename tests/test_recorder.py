@@ -2,136 +2,34 @@
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import subprocess
+import time
 from collections import Counter
-from collections.abc import Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import msgpack
 import pytest
-import zenoh
-from conftest import REPO, fixstream_cmd, service_env, wait_until
+from conftest import REPO, fixstream_cmd, wait_until
 from mcap.reader import make_reader
-from samples import EXAMPLES, available_examples
+from recorder_support import by_topic, examples, recorder, records_of, restamp
+from samples import EXAMPLES
+from test_player_zenoh import Collector
 
 from schemas import Diagnostic, Message
 from shared import codec, keys
-from shared.mcap_io import MAGIC, Record, decode_record, iter_records, recording_files
-from shared.session import open_session
-from shared.settings import ZenohSettings
+from shared.mcap_io import (
+    MAGIC,
+    REJECTED_PREFIX,
+    decode_record,
+    decode_rejected,
+    is_rejected,
+    iter_records,
+    recording_files,
+)
 
 pytestmark = pytest.mark.e2e
-
-
-def examples() -> dict[str, Message]:
-    """One example of every model that has one (completeness is the contract test's business)."""
-    return available_examples()
-
-
-def restamp(msg: Message, seq: int, source: str) -> Message:
-    header = msg.header.model_copy(update={"seq": seq, "source": source, "stamp_ns": 1_000_000 + seq})
-    return msg.model_copy(update={"header": header})
-
-
-@dataclass
-class Recorder:
-    """A recorder subprocess and a Zenoh client session talking to it."""
-
-    proc: subprocess.Popen[bytes]
-    session: zenoh.Session
-    instance: str
-    out_dir: Path
-    log_path: Path
-    publishers: dict[str, zenoh.Publisher] = field(default_factory=dict)
-
-    def status(self) -> dict[str, Any]:
-        replies = list(self.session.get(keys.status("recorder", self.instance), timeout=2.0))
-        for reply in replies:
-            if reply.ok is not None:
-                body: dict[str, Any] = json.loads(reply.ok.payload.to_bytes())
-                return body
-        return {}
-
-    def alive(self) -> bool:
-        replies = self.session.liveliness().get(keys.alive("recorder", self.instance), timeout=2.0)
-        return any(r.ok is not None for r in replies)
-
-    def publisher(self, key: str) -> zenoh.Publisher:
-        """A reliable, blocking publisher that the recorder's subscriber already matches."""
-        pub = self.publishers.get(key)
-        if pub is None:
-            pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
-            assert wait_until(lambda: pub.matching_status.matching, timeout=10), f"recorder does not match {key}"
-            self.publishers[key] = pub
-        return pub
-
-    def send(self, key: str, msg: Message) -> None:
-        self.publisher(key).put(codec.encode(msg), encoding=zenoh.Encoding(codec.encoding_of(type(msg))))
-
-    def send_raw(self, key: str, payload: bytes, encoding: str) -> None:
-        self.publisher(key).put(payload, encoding=zenoh.Encoding(encoding))
-
-    def wait_status(self, predicate: Any, timeout: float = 20.0) -> dict[str, Any]:
-        last: dict[str, Any] = {}
-
-        def check() -> bool:
-            nonlocal last
-            last = self.status()
-            return bool(last) and bool(predicate(last))
-
-        assert wait_until(check, timeout=timeout, interval=0.1), f"status never matched; last: {last}\n{self.log()}"
-        return last
-
-    def terminate(self) -> None:
-        self.proc.send_signal(signal.SIGTERM)
-        rc = self.proc.wait(timeout=20)
-        assert rc == 0, f"recorder exited {rc}\n{self.log()}"
-
-    def log(self) -> str:
-        return self.log_path.read_text(errors="replace")[-4000:]
-
-
-@contextmanager
-def recorder(
-    router: str, tmp_path: Path, instance: str = "t1", cli: list[str] | None = None, **env: str
-) -> Iterator[Recorder]:
-    """Start ``fixstream run recorder`` (or ``fixstream record <cli>``) and wait until it is alive."""
-    out_dir = tmp_path / "out"
-    log_path = tmp_path / f"recorder-{instance}.log"
-    settings = {"FIXSTREAM_RECORDER_INSTANCE": instance, "FIXSTREAM_RECORDER_OUT_DIR": str(out_dir), **env}
-    cmd = fixstream_cmd("record", *cli) if cli is not None else fixstream_cmd("run", "recorder")
-    with log_path.open("wb") as log_file:
-        proc = subprocess.Popen(cmd, cwd=REPO, env=service_env(router, **settings), stdout=log_file, stderr=log_file)
-    session = open_session(ZenohSettings(mode="client", connect=[router]))
-    rec = Recorder(proc=proc, session=session, instance=instance, out_dir=out_dir, log_path=log_path)
-    try:
-        assert wait_until(lambda: proc.poll() is not None or rec.alive(), timeout=30), rec.log()
-        assert proc.poll() is None, f"recorder died at start\n{rec.log()}"
-        yield rec
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=10)
-        for pub in rec.publishers.values():
-            pub.undeclare()
-        session.close()
-
-
-def records_of(paths: list[Path]) -> list[Record]:
-    return [r for p in paths for r in iter_records(p)]
-
-
-def by_topic(records: list[Record]) -> dict[str, list[Message]]:
-    out: dict[str, list[Message]] = {}
-    for r in records:
-        out.setdefault(r.topic, []).append(decode_record(r))
-    return out
 
 
 # ----- recording, both compressions, both launchers ---------------------------------------------------
@@ -283,21 +181,27 @@ def _malformed(i: int) -> tuple[bytes, str, str]:
     return b"\xc1" + os.urandom(1 + i % 40), _DEPTH_ENCODING, "bad_msgpack"
 
 
-def test_malformed_flood_is_counted_reported_and_survived(router: str, tmp_path: Path) -> None:
-    n_bad, every = 1000, 10
+def test_malformed_flood_is_recorded_raw_counted_and_survived(router: str, tmp_path: Path) -> None:
+    """Every bad payload is in the file byte for byte on fixstream/rejected/<key> with its reason; the recorder's own
+    diagnostics stay aggregated: at most one per reason per diag_interval_s (so at most reasons x (elapsed / interval
+    + 1) in all, where elapsed is measured here: a slow machine only widens the bound, it cannot break it)."""
+    n_bad, every, interval_s = 1000, 10, 0.5
     diags: list[Diagnostic] = []
-    env = {"FIXSTREAM_RECORDER_KEY_EXPR": "fixstream/sensor/**"}
+    env = {"FIXSTREAM_RECORDER_KEY_EXPR": "fixstream/sensor/**", "FIXSTREAM_RECORDER_DIAG_INTERVAL_S": str(interval_s)}
     good_key, bad_key = "fixstream/sensor/auv1/depth/good", "fixstream/sensor/auv1/depth/bad"
+    sent_bad: list[tuple[bytes, str, str]] = []
     with recorder(router, tmp_path, instance="faults", **env) as rec:
         sub = rec.session.declare_subscriber(
             keys.diag("recorder", "faults"),
             lambda s: diags.append(codec.decode(s.payload.to_bytes(), str(s.encoding))),  # type: ignore[arg-type]
         )
+        t0 = time.monotonic()
         expected: Counter[str] = Counter()
         good: list[Message] = []
         for i in range(n_bad):
             payload, encoding, reason = _malformed(i)
             rec.send_raw(bad_key, payload, encoding)
+            sent_bad.append((payload, encoding, reason))
             expected[reason] += 1
             if i % every == 0:
                 msg = restamp(EXAMPLES["Depth"], len(good), "test/good")
@@ -306,12 +210,42 @@ def test_malformed_flood_is_counted_reported_and_survived(router: str, tmp_path:
         status = rec.wait_status(lambda s: s["counters"]["rejected"] >= n_bad and s["written"] >= len(good))
         assert rec.proc.poll() is None and rec.alive()
         assert status["counters"]["rejected_by_reason"] == dict(expected)
-        assert status["counters"]["rejected"] == n_bad
+        assert status["counters"]["rejected"] == status["rejected_recorded"] == n_bad
         assert (status["written"], status["lost"]) == (len(good), 0)
         assert wait_until(lambda: set(expected) <= {d.reason for d in diags}, timeout=10)
-        assert all(d.key == bad_key and d.service == "recorder" for d in diags)
-        sub.undeclare()
         rec.terminate()
+        elapsed = time.monotonic() - t0
+        sub.undeclare()
+    assert all(d.key == bad_key and d.service == "recorder" for d in diags)
+    assert {d.reason: d.count for d in diags if d.count == expected[d.reason]} == dict(expected)  # final counts
+    assert len(diags) <= len(expected) * (elapsed / interval_s + 1), (len(diags), elapsed)
     records = records_of(recording_files(rec.out_dir))
-    assert {r.topic for r in records} == {good_key}
-    assert [decode_record(r) for r in records] == good
+    assert {r.topic for r in records} == {good_key, REJECTED_PREFIX + bad_key}
+    assert [decode_record(r) for r in records if r.topic == good_key] == good
+    rejected = [decode_rejected(r) for r in records if is_rejected(r)]
+    assert [(x.payload, x.encoding, x.reason) for x in rejected] == sent_bad
+    assert all(x.key == bad_key and x.detail for x in rejected)
+
+    # a replay puts the same bytes back on the original keys, in the recorded order
+    (path,) = recording_files(rec.out_dir)
+    recorded = [
+        (x.key, x.payload, x.encoding)
+        if is_rejected(r) and (x := decode_rejected(r))
+        else (r.topic, codec.encode(decode_record(r)), codec.encoding_of(type(decode_record(r))))
+        for r in records
+    ]
+    collector = Collector(router)
+    try:
+        done = subprocess.run(
+            fixstream_cmd("play", str(path), "--rate", "0", "--connect", router, "--linger", "0.3"),
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert done.returncode == 0, done.stderr
+        assert wait_until(lambda: len(collector.samples) >= len(recorded), timeout=20)
+        replayed = [(k, p, e) for k, p, e, _ in collector.samples if k.startswith("fixstream/sensor/")]
+    finally:
+        collector.close()
+    assert replayed == recorded

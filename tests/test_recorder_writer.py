@@ -15,7 +15,7 @@ from schemas import Message
 from schemas.export import json_schema
 from services.recorder.settings import RecorderSettings
 from services.recorder.writer import RotatingMcapWriter
-from shared.mcap_io import MAGIC, decode_record, iter_records, recording_files
+from shared.mcap_io import MAGIC, Rejected, decode_record, decode_rejected, iter_records, recording_files
 
 
 class FakeClock:
@@ -39,7 +39,7 @@ def test_file_layout_is_what_foxglove_reads(tmp_path: Path) -> None:
     w = RotatingMcapWriter(tmp_path, compression="lz4", chunk_size_bytes=4096)
     sent = [(f"fixstream/test/{name}", stamped(m, i)) for i, (name, m) in enumerate(examples().items())]
     for key, msg in sent:
-        w.write(key, msg, log_time_ns=123)
+        w.write(key, msg, rx_time_ns=123)
     path = w.finish()
     assert path is not None and path.parent == tmp_path.resolve()
     with path.open("rb") as f:
@@ -67,7 +67,7 @@ def test_open_chunk_is_written_after_chunk_flush_s(tmp_path: Path) -> None:
     w = RotatingMcapWriter(tmp_path, chunk_size_bytes=1 << 20, chunk_flush_s=0.5, clock=clock)
     depth = EXAMPLES["Depth"]
     for i in range(5):
-        w.write("fixstream/test/depth", stamped(depth, i), log_time_ns=i)
+        w.write("fixstream/test/depth", stamped(depth, i), rx_time_ns=i)
     path = w.current_path
     assert path is not None
     assert list(iter_records(path)) == []  # still in the open chunk, nothing on disk yet
@@ -78,7 +78,7 @@ def test_open_chunk_is_written_after_chunk_flush_s(tmp_path: Path) -> None:
     w.poll()
     assert [decode_record(r).header.seq for r in iter_records(path)] == [0, 1, 2, 3, 4]  # file still open
     assert not path.read_bytes().endswith(MAGIC)
-    w.write("fixstream/test/depth", stamped(depth, 5), log_time_ns=5)
+    w.write("fixstream/test/depth", stamped(depth, 5), rx_time_ns=5)
     w.finish()
     assert [decode_record(r).header.seq for r in iter_records(path)] == [0, 1, 2, 3, 4, 5]
     assert path.read_bytes().endswith(MAGIC)
@@ -91,7 +91,7 @@ def test_rotation_by_size_and_by_duration(tmp_path: Path) -> None:
     )
     truth = EXAMPLES["Truth"]
     for i in range(200):
-        by_size.write("fixstream/truth/auv1", stamped(truth, i), log_time_ns=i)
+        by_size.write("fixstream/truth/auv1", stamped(truth, i), rx_time_ns=i)
     by_size.finish()
     files = recording_files(tmp_path / "size")
     assert files == by_size.files_written and len(files) >= 3
@@ -100,7 +100,7 @@ def test_rotation_by_size_and_by_duration(tmp_path: Path) -> None:
 
     by_age = RotatingMcapWriter(tmp_path / "age", rotate_duration_s=10.0, clock=clock)
     for i in range(30):
-        by_age.write("fixstream/truth/auv1", stamped(truth, i), log_time_ns=i)
+        by_age.write("fixstream/truth/auv1", stamped(truth, i), rx_time_ns=i)
         clock.t += 1.0  # 30 s of messages at 1 Hz -> three files of 10 messages
     by_age.poll()
     by_age.finish()
@@ -114,7 +114,7 @@ def test_no_file_is_overwritten(tmp_path: Path) -> None:
     for name in taken:
         (tmp_path / name).write_bytes(b"precious")
     w = RotatingMcapWriter(tmp_path)
-    w.write("fixstream/test/depth", EXAMPLES["Depth"], log_time_ns=1)
+    w.write("fixstream/test/depth", EXAMPLES["Depth"], rx_time_ns=1)
     path = w.finish()
     assert path is not None and path.name not in taken and path.name.endswith("_001.mcap")
     assert all((tmp_path / name).read_bytes() == b"precious" for name in taken)
@@ -146,3 +146,34 @@ def test_settings_from_environment(monkeypatch: pytest.MonkeyPatch, tmp_path: Pa
     monkeypatch.setenv("FIXSTREAM_RECORDER_COMPRESSION", "bzip2")
     with pytest.raises(ValidationError, match="compression"):
         RecorderSettings.load()
+
+
+def test_time_fields_rejected_channel_metadata_and_attachments_in_every_file(tmp_path: Path) -> None:
+    """log_time = publish_time = header.stamp_ns whatever the receive time; a rejected payload keeps its bytes and
+    encoding; metadata and attachments are in each file of a rotation (read back with the official reader)."""
+    clock = FakeClock()
+    w = RotatingMcapWriter(tmp_path, rotate_duration_s=10.0, clock=clock, metadata={"who": "test"})
+    w.put_attachment("scenario/s.yaml", "application/yaml", b"name: s\n", 0)
+    depth = EXAMPLES["Depth"]
+    bad = Rejected("fixstream/sensor/a/depth/d", "application/msgpack;fixstream.Depth/1", "non_finite", "NaN", b"\xc1x")
+    w.write("fixstream/sensor/a/depth/d", stamped(depth, 0), rx_time_ns=999_999)
+    w.write_rejected(bad, stamp_ns=11)
+    w.put_metadata("fixstream.run", {"scenario": "s"})
+    clock.t += 10.0  # rotation by duration at the next write
+    w.write("fixstream/sensor/a/depth/d", stamped(depth, 1), rx_time_ns=5)
+    w.finish()
+    files = recording_files(tmp_path)
+    assert len(files) == 2
+    for path in files:
+        with path.open("rb") as f:
+            reader = make_reader(f)
+            assert {m.name: m.metadata for m in reader.iter_metadata()} == {
+                "fixstream.recorder": {"who": "test"},
+                "fixstream.run": {"scenario": "s"},
+            }
+            assert [(a.name, a.data) for a in reader.iter_attachments()] == [("scenario/s.yaml", b"name: s\n")]
+    first = list(iter_records(files[0]))
+    assert [(r.log_time_ns, r.publish_time_ns) for r in first] == [(10, 10), (11, 11)]  # stamps, not receive times
+    assert decode_rejected(first[1]) == Rejected(bad.key, bad.encoding, bad.reason, bad.detail, bad.payload, 0)
+    assert first[1].topic == "fixstream/rejected/fixstream/sensor/a/depth/d"
+    assert [r.log_time_ns for r in iter_records(files[1])] == [11]

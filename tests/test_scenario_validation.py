@@ -115,7 +115,7 @@ def test_unknown_estimator_kind(tmp_path: Path) -> None:
     doc = nav_scenario()
     doc["estimators"] = [{"kind": "no_such_estimator", "instance": "a"}]
     msg = _error(tmp_path, doc)
-    assert "estimators[0].kind: no estimator package services/no_such_estimator" in msg
+    assert "estimators[0].kind: no installed plugin names an estimator 'no_such_estimator'" in msg
     doc["estimators"] = [{"kind": "player", "instance": "a"}, {"kind": "player", "instance": "a"}]
     msg = _error(tmp_path, doc)
     assert "estimators[1].instance: duplicate estimator instance 'a'" in msg

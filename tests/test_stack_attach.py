@@ -242,7 +242,7 @@ BAD_STARTS: list[tuple[list[str], dict[str, str], str]] = [
     (["echo", "--connect", "NOROUTER", "--connect-timeout", "0"], {}, "no Zenoh router reachable"),
     (["run", "terrain_nav"], {}, "FIXSTREAM_TERRAIN_NAV_MAP_PATH: missing"),
     (["run", "terrain_nav"], {"FIXSTREAM_TERRAIN_NAV_MAP_PATH": "/nonexistent/map"}, "does not exist"),
-    (["run", "no_such_service"], {}, "no service named 'no_such_service'"),
+    (["run", "no_such_service"], {}, "no plugin named 'no_such_service'"),
     (["status"], {"FIXSTREAM_ZENOH_CONNECT_TIMEOUT_S": "soon"}, "FIXSTREAM_ZENOH_CONNECT_TIMEOUT_S"),
     (["run", "lbl_nav"], {"FIXSTREAM_LBL_NAV_QUEUE_SIZE": "0"}, "FIXSTREAM_LBL_NAV_QUEUE_SIZE"),
 ]

@@ -6,13 +6,14 @@ event list the player would publish (:func:`services.player.timeline.stamp`), an
 
 * ``sensor_stats`` (built in): per sensor key, the count and the error mean/SD/RMS of each component
   against truth (:mod:`services.player.sensor_stats`);
-* per estimator named in the scenario, ``services/<kind>/mc.py``'s ``run_core(events, params, scenario)``.
+* per estimator named in the scenario, its plugin's mc module's ``run_core(events, params, scenario)``
+  (:mod:`shared.plugins`).
 
 Runs are spread over processes (``concurrent.futures.ProcessPoolExecutor``, spawn start method) and
 collected by run index, so the JSON is identical for any number of workers. Aggregates: ``sensor_stats``
 pooled over all samples of all runs, and each plugin's ``aggregate(per_run)``.
 
-An mc plugin module ``services/<kind>/mc.py`` exposes::
+An mc module (``services/<kind>/mc.py`` by convention, named in the folder's ``plugin.py``) exposes::
 
     def run_core(events: list[Event], params: dict, scenario: Scenario) -> dict   # JSON-able metrics of one run
     def aggregate(per_run: list[dict]) -> dict                                    # over all runs
@@ -35,6 +36,7 @@ from typing import Any
 from services.player.scenario import Scenario
 from services.player.sensor_stats import aggregate_sensor_stats, sensor_stats
 from services.player.timeline import build, player_source, stamp
+from shared.plugins import mc_module
 
 #: the instance name in header.source of the events fed to the cores (``player/default``, as ``fixstream play``)
 EVENT_INSTANCE = "default"
@@ -45,17 +47,15 @@ class MonteCarloError(RuntimeError):
 
 
 def load_plugin(kind: str) -> ModuleType:
-    """``services.<kind>.mc``, checked for ``run_core`` and ``aggregate``."""
-    name = f"services.{kind}.mc"
-    try:
-        module = importlib.import_module(name)
-    except ModuleNotFoundError as exc:
-        if exc.name is not None and name.startswith(exc.name):
-            raise MonteCarloError(f"estimator {kind!r} has no Monte-Carlo plugin (services/{kind}/mc.py)") from None
-        raise
+    """The ``fixstream mc`` module of an estimator kind (its plugin's ``mc``), checked for ``run_core`` and
+    ``aggregate``."""
+    name = mc_module(kind)
+    if name is None:
+        raise MonteCarloError(f"estimator {kind!r} has no Monte-Carlo plugin (no plugin names an mc module for it)")
+    module = importlib.import_module(name)
     for fn in ("run_core", "aggregate"):
         if not callable(getattr(module, fn, None)):
-            raise MonteCarloError(f"services/{kind}/mc.py does not define {fn}()")
+            raise MonteCarloError(f"{name} does not define {fn}()")
     return module
 
 

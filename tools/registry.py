@@ -1,19 +1,18 @@
-"""Find services by name: ``services/<name>/service.py`` exposes ``build() -> Service``."""
+"""Find services by name through the plugin registry: ``fixstream run <name>`` builds ``plugin(name).service``."""
 
 from __future__ import annotations
 
-import importlib
-
 from shared.errors import StartupError
+from shared.plugins import PluginError, plugin, resolve
 from shared.service import Service
 
 
 def load_service(name: str) -> Service:
     try:
-        module = importlib.import_module(f"services.{name}.service")
-    except ModuleNotFoundError as exc:
-        if exc.name and exc.name.startswith(f"services.{name}"):
-            raise StartupError(f"no service named {name!r} (looked for services/{name}/service.py)") from None
-        raise
-    service: Service = module.build()
+        found = plugin(name)
+    except PluginError as exc:
+        raise StartupError(str(exc)) from None
+    if found.service is None:
+        raise StartupError(f"{name!r} is not a service one runs with fixstream run ({found.summary})")
+    service: Service = resolve(found.service)()
     return service

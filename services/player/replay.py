@@ -1,10 +1,14 @@
 """Replay an MCAP recording onto Zenoh.
 
-Records go out in log-time order, paced by log-time differences at ``rate`` times real time (0: as fast
-as possible), each on its channel's topic (the key expression it was recorded from). Every record is
-rebuilt as its pydantic model and re-encoded with :mod:`shared.codec`, so the bytes on the wire are
-those the original publisher sent (headers are kept as recorded: source, seq, stamps). A record that
-cannot be rebuilt (unknown schema, invalid data) is skipped, logged and counted, never silently lost.
+Records go out in file order (the recorder's receive order), paced by their log times at ``rate`` times real time
+(0: as fast as possible); in a fixstream recording the log time is the data stamp, so a replay at ``--rate 1`` takes
+the scenario's own duration whatever rate it was recorded at, and a player's start marker restarts the pacing (a new
+run's clock starts again). Each record goes on its channel's topic (the key expression it was recorded from),
+rebuilt as its pydantic model and re-encoded with :mod:`shared.codec`, so the bytes on the wire are those the
+original publisher sent (headers are kept as recorded: source, seq, stamps). A payload the recorder rejected
+(``fixstream/rejected/<key>``) goes back byte for byte on its original key with its original encoding. A record
+that cannot be rebuilt (unknown fixstream schema, invalid data) is skipped, logged and counted, never silently
+lost; channels that are not fixstream's (the Foxglove scene channels) are skipped quietly and counted.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from pathlib import Path
 
 import zenoh
 
+from schemas import ScenarioMarker
 from shared import codec
 
 from .pacing import Pacer
@@ -54,22 +59,38 @@ def replay(
     t0 = time.monotonic()
     try:
         for record in mcap_io.iter_records(path):
-            try:
-                msg = mcap_io.decode_record(record)
-            except Exception as exc:  # reported and counted; the rest of the file still plays
-                reason = getattr(exc, "reason", type(exc).__name__)
-                skipped[str(reason)] += 1
-                log.warning("skipping a record on %s at %d ns: %s", record.topic, record.log_time_ns, exc)
+            if mcap_io.is_rejected(record):
+                try:
+                    raw = mcap_io.decode_rejected(record)
+                except mcap_io.McapReadError as exc:
+                    skipped[exc.reason] += 1
+                    log.warning("skipping a record on %s: %s", record.topic, exc)
+                    continue
+                if not raw.payload and raw.reason == "payload_too_large":
+                    skipped["not_kept"] += 1  # the recorder kept only its size
+                    continue
+                key, payload, encoding = raw.key, raw.payload, raw.encoding
+            elif not record.schema_name.startswith(mcap_io.SCHEMA_PREFIX):
+                skipped["foreign_channel"] += 1  # e.g. /foxglove/scene/...: not a fixstream stream
                 continue
+            else:
+                try:
+                    msg = mcap_io.decode_record(record)
+                except Exception as exc:  # reported and counted; the rest of the file still plays
+                    reason = getattr(exc, "reason", type(exc).__name__)
+                    skipped[str(reason)] += 1
+                    log.warning("skipping a record on %s at %d ns: %s", record.topic, record.log_time_ns, exc)
+                    continue
+                key, payload, encoding = record.topic, codec.encode(msg), codec.encoding_of(type(msg))
+                if isinstance(msg, ScenarioMarker) and msg.event == "start" and last_log_time is not None:
+                    pacer, last_log_time = Pacer(rate, stop), None  # a new run: its data clock starts again
             if last_log_time is not None and record.log_time_ns < last_log_time:
-                log.warning(
-                    "log time goes backwards on %s (%d < %d ns)", record.topic, record.log_time_ns, last_log_time
-                )
+                log.debug("log time goes backwards on %s (%d < %d ns)", record.topic, record.log_time_ns, last_log_time)
             last_log_time = record.log_time_ns if last_log_time is None else max(last_log_time, record.log_time_ns)
             if not pacer.wait(last_log_time):
                 completed = False
                 break
-            pubs.put_bytes(record.topic, codec.encode(msg), codec.encoding_of(type(msg)))
+            pubs.put_bytes(key, payload, encoding)
     finally:
         pubs.close()
     result = ReplayResult(dict(pubs.counts), dict(skipped), completed, time.monotonic() - t0)

@@ -17,6 +17,7 @@ import yaml
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
 
 from shared import keys
+from shared.plugins import mc_module, plugins
 
 from .simulators import NS_PER_S, SimParams, UnknownSimulator, get_simulator
 
@@ -160,18 +161,12 @@ def wait_keys(names: list[str]) -> list[str]:
 
 
 def _check_estimator(est: EstimatorSpec) -> list[str]:
-    try:
-        found = importlib.util.find_spec(f"services.{est.kind}") is not None
-    except ModuleNotFoundError:
-        found = False
-    if not found:
-        return [f".kind: no estimator package services/{est.kind}"]
-    try:
-        mc = importlib.import_module(f"services.{est.kind}.mc")
-    except ModuleNotFoundError as exc:
-        if exc.name == f"services.{est.kind}.mc":
-            return []  # no mc plugin: fine for playing, ``fixstream mc`` says so
-        raise
+    if not any(est.kind == p.name or est.kind in p.mc for p in plugins().values()):
+        return [f".kind: no installed plugin names an estimator {est.kind!r} (shared.plugins)"]
+    module = mc_module(est.kind)
+    if module is None:
+        return []  # no mc module: fine for playing, ``fixstream mc`` says so
+    mc = importlib.import_module(module)
     model = getattr(mc, "Params", None)
     if model is None:
         return []

@@ -1,51 +1,93 @@
-"""The recorder service: everything on a key expression to MCAP, with loss counting.
+"""The recorder service: everything on a key expression to MCAP, faithfully, with loss counted.
 
-Every sample on ``key_expr`` (default ``fixstream/**``) is decoded and validated with
-:func:`shared.codec.decode`. A payload that fails is never written: it is counted per reason and reported
-on ``fixstream/diag/recorder/<instance>`` (:meth:`Service.reject`). A valid message is written to the
-current MCAP file (:class:`~services.recorder.writer.RotatingMcapWriter`) and its ``header.seq`` is checked
-per (key, ``header.source``): a jump forward is a ``seq_gap`` diagnostic (and adds the missing count to
-``lost``), a jump backwards (or a repeat) is a ``seq_reset`` diagnostic (publisher restarted). Both are
-reported, not rejected: the message itself is recorded.
+**What is recorded.** Every sample on ``key_expr`` (default ``fixstream/**``):
 
-With ``FIXSTREAM_RECORDER_FOXGLOVE=true`` every written message that carries positions (truth, fixes, tracks)
-is also written as Foxglove scene and map messages (:mod:`shared.foxglove`), so the file opens in Foxglove
-with a 3D scene and a map and no set-up; the frames and the geodetic origin come from the scenario the player's
-start marker names (looked up in ``FIXSTREAM_RECORDER_SCENARIOS_DIR``).
+* a payload that decodes and validates (:func:`shared.codec.unpack` within its size limits, then strict pydantic
+  validation) is written as the model's JSON on the channel of its key (:mod:`services.recorder.writer`);
+* any other payload is written byte for byte on ``fixstream/rejected/<key>`` with its Zenoh encoding, the reason
+  and the detail (:class:`shared.mcap_io.Rejected`), so a replay puts the same bytes back on the same key. Payloads
+  over ``max_payload_bytes`` are kept as an envelope without the bytes (``payload_too_large``).
 
-Status (``fixstream/status/recorder/<instance>``) adds ``written``, ``lost``, ``seq_gaps``,
-``seq_resets``, ``write_errors``, ``files_written`` (finalised files), ``recent_files`` (the last ten),
-``current_file`` and ``chunks_written`` to the base counters. SIGTERM finalises the current file (summary
-and footer); after a SIGKILL the file is readable up to its last complete chunk (see
-:mod:`services.recorder.writer`).
+Every message's time in the file is its ``header.stamp_ns`` (the data clock): a recording at ``--rate 0`` and at
+``--rate 5`` of the same scenario have the same timeline (docs/recorder.md).
+
+**Loss counted where it happens.** ``(header.source, header.seq)`` per key goes through the base's
+:class:`~shared.seq.SeqTracker` (also for rejected payloads whose header unpacks, so a refused message is not a
+gap): ``seq.lost`` counts transport gaps only; jumps beyond any plausible loss, repeats and restarts are counted
+apart. An in-order message costs one dict look-up; the tracker sees only the exceptions.
+
+**Throughput.** Samples reach the recorder through a Zenoh FIFO handler (``queue_size`` samples): no Python callback
+per sample; one thread drains it in batches, validates and hands JSON to the Rust MCAP writer. When the FIFO is full
+Zenoh holds the delivery (a blocking publisher slows down, a dropping one loses at the router, which the seq check
+counts); the recorder never queues without bound, and stops within a FIFO's worth of work after SIGTERM. Its status
+queryable and liveliness token live on a second session, whose link the data's back-pressure never holds, so it
+answers at once however far behind the data is.
+
+**Crash bound.** In memory at any time: the FIFO (≤ ``queue_size`` samples) and the open chunk (≤
+``chunk_flush_s`` of wall time, checked after every batch, and ≤ ``chunk_size_bytes``). A SIGKILL loses at most
+that; everything older is in complete chunks on disk (status ``durable``).
+
+**Self-describing files.** Metadata records ``fixstream.recorder`` (version, configuration, what the time fields
+mean), ``fixstream.run`` (scenario, seed, run index, player, origin; from the player's start marker) and
+``fixstream.services`` (every service's configuration from its status queryable, asked at the start marker); the
+scenario YAML and its maps as attachments, looked up only inside the scenario directory
+(:mod:`services.recorder.run_context`).
+
+**Its own diagnostics are bounded.** Rejections and seq events are aggregated: at most one diagnostic per reason
+per ``diag_interval_s`` (with the counts), whatever the flood.
+
+Status (``fixstream/status/recorder/<instance>``) adds ``written``, ``rejected_recorded``, ``durable``, ``lost``,
+``seq_gaps``, ``seq_jumps``, ``seq_resets``, ``write_errors``, ``files_written``, ``recent_files``,
+``current_file``, ``fifo`` (capacity, the largest backlog drained at once) and ``runs`` to the base's.
 """
 
 from __future__ import annotations
 
+import contextlib
+import json
 import logging
-import os
+import threading
+import time
 from collections import Counter
 from collections.abc import Iterable
+from pathlib import Path
 from typing import Any, ClassVar, cast
 
-from schemas import Message
-from services.player.scenario import load_by_name
-from shared import codec
+import zenoh
+
+from schemas import Message, ScenarioMarker
+from schemas.base import MAX_STAMP_NS
+from shared import codec, keys
 from shared.foxglove.convert import Converter
+from shared.foxglove.frames import FrameContext
 from shared.foxglove.recording import FoxgloveChannels
-from shared.service import Output, Service, Subscription
+from shared.mcap_io import Rejected
+from shared.service import PLAYER_PREFIX, Output, Service, Subscription
+from shared.session import open_session, query_all
 from shared.settings import ZenohSettings
 
+from .run_context import RunContext, recorder_metadata, run_context, services_metadata
 from .settings import RecorderSettings
 from .writer import RotatingMcapWriter
 
 log = logging.getLogger("fixstream.recorder")
+
+#: samples taken from the FIFO before the writer's flush and rotation are checked again
+_BATCH = 4096
+#: (key, source) pairs whose next seq is remembered on the fast path, at most
+_MAX_PAIRS = 65_536
+_SCENARIO_KEYS = f"{keys.ROOT}/scenario/**"
+#: an encoding not looked up yet (None means: looked up, not a fixstream encoding)
+_UNSEEN: Any = object()
 
 
 class RecorderService(Service):
     """Records a key expression to rotating MCAP files; see the module docstring."""
 
     name: ClassVar[str] = "recorder"
+    #: the recorder aggregates its own diagnostics (one per reason per diag_interval_s); this only caps bursts
+    diag_burst: ClassVar[int] = 20
+    diag_rate_hz: ClassVar[float] = 10.0
 
     def __init__(self, settings: RecorderSettings, zenoh_settings: ZenohSettings | None = None) -> None:
         super().__init__(settings, zenoh_settings)
@@ -58,96 +100,357 @@ class RecorderService(Service):
             chunk_flush_s=settings.chunk_flush_s,
             rotate_size_bytes=settings.rotate_size_bytes,
             rotate_duration_s=settings.rotate_duration_s,
-            metadata={"recorder": self.source, "key_expr": settings.key_expr, "pid": str(os.getpid())},
         )
-        #: messages lost according to the publishers' seq (sum of the gaps)
-        self.lost = 0
+        self.writer.put_metadata("fixstream.recorder", recorder_metadata(self.source, settings.model_dump(mode="json")))
         self.write_errors = 0
-        #: next expected seq per (key, header.source)
+        #: next expected seq per (key, header.source): the fast path of the seq check
         self._next_seq: dict[tuple[str, str], int] = {}
-        self.seq_events: Counter[str] = Counter()
+        #: decoded model per encoding string (None: not a fixstream encoding)
+        self._models: dict[str, type[Message] | None] = {}
+        #: the data clock: stamp of the last valid message (what a rejected payload without a stamp is filed at)
+        self.data_clock_ns = 0
+        self.fifo_peak = 0
+        self.runs: Counter[str] = Counter()
+        self.current_run: RunContext | None = None
+        self._diag_since: Counter[str] = Counter()
+        self._diag_example: dict[str, tuple[str, str]] = {}
+        self._next_diag = 0.0
+        self._status_thread: threading.Thread | None = None
+        self._status_replies: list[dict[str, Any]] | None = None
+        #: services whose status answered the last start marker's query (their configuration is in the file)
+        self.services_seen = 0
+        self._control: zenoh.Session | None = None
         #: the Foxglove scene and map channels (FIXSTREAM_RECORDER_FOXGLOVE), converted from what is written
         self.foxglove: FoxgloveChannels | None = None
         if settings.foxglove:
-            self.foxglove = FoxgloveChannels(
-                Converter(scenarios_dir=settings.scenarios_dir, scenario_loader=load_by_name)
-            )
+            self.foxglove = FoxgloveChannels(Converter(FrameContext()))
 
-    # ----- Service hooks ------------------------------------------------------------------------
+    # ----- the base's hooks (offline use: Service.process -> the raw handler) -------------------------
     def subscriptions(self) -> list[Subscription]:
-        return [Subscription(key_expr=self.config.key_expr, raw_handler=self._on_sample)]
+        return [Subscription(key_expr=self.config.key_expr, raw_handler=self._raw)]
 
-    def on_idle(self) -> Iterable[Output]:
-        """Close a chunk that has waited ``chunk_flush_s``; rotate a file whose duration is over."""
-        try:
-            self.writer.poll()
-        except OSError as exc:
-            self._write_failed(self.config.key_expr, exc)
+    def _raw(self, key: str, payload: bytes, encoding: str) -> Iterable[Output]:
+        self.on_sample(key, payload, encoding)
         return ()
 
     def on_stop(self) -> None:
-        """Finalise the current file (summary, footer, fsync); the base drained the queue before."""
+        """Finalise the current file (summary, footer, fsync)."""
         path = self.writer.finish()
         if path is not None:
             log.info("%s: finalised %s", self.source, path)
 
     def status_extra(self) -> dict[str, Any]:
         current = self.writer.current_path
+        ev = self.seq.events
         return {
             "written": self.writer.messages_written,
-            "lost": self.lost,
-            "seq_gaps": self.seq_events["seq_gap"],
-            "seq_resets": self.seq_events["seq_reset"],
+            "rejected_recorded": self.writer.rejected_written,
+            "durable": self.writer.durable,
+            "lost": self.seq.lost,
+            "seq_gaps": ev["seq_gap"],
+            "seq_jumps": ev["seq_jump"],
+            "seq_resets": ev["seq_reset"],
+            "duplicates": ev["duplicate"],
             "write_errors": self.write_errors,
-            "files_written": len(self.writer.files_written),
+            "files_written": self.writer.files_finalised,
             "recent_files": [str(p) for p in self.writer.files_written[-10:]],
             "current_file": str(current) if current is not None else None,
-            "chunks_written": self.writer.chunks_written,
+            "unflushed_age_s": round(self.writer.unflushed_age_s, 3),
+            "fifo": {"capacity": self.config.queue_size, "peak_backlog": self.fifo_peak},
+            "data_clock_ns": self.data_clock_ns,
+            "runs": dict(self.runs),
+            "services_seen": self.services_seen,
             "foxglove_written": self.foxglove.written if self.foxglove is not None else None,
             "foxglove_errors": dict(self.foxglove.errors) if self.foxglove is not None else None,
         }
 
-    # ----- sample path --------------------------------------------------------------------------
-    def _on_sample(self, key: str, payload: bytes, encoding: str) -> None:
-        """Decode (DecodeError propagates: the base rejects and reports it), write, check seq."""
-        msg = codec.decode(payload, encoding)
+    # ----- serving: FIFO handler, batches, no per-sample callback --------------------------------------
+    def run(self) -> int:
+        """Open the session, record until stopped (SIGTERM/SIGINT), finalise the file, close. Exit code 0."""
+        self.session = open_session(self.zenoh_settings)
+        subs: list[Any] = []
+        declared: list[Any] = []
         try:
-            self.writer.write(key, msg, self.rx_time_ns)
+            fifo: Any = zenoh.handlers.FifoChannel(self.config.queue_size)
+            subs.append(self.session.declare_subscriber(self.config.key_expr, fifo))
+            if not zenoh.KeyExpr(self.config.key_expr).intersects(zenoh.KeyExpr(_SCENARIO_KEYS)):
+                # markers are not recorded then, but they still name the run in the metadata
+                subs.append(self.session.declare_subscriber(_SCENARIO_KEYS, zenoh.handlers.FifoChannel(64)))
+            # status and liveliness on a session of their own: its link is never held by the data FIFO's
+            # back-pressure, so the recorder answers at once however far behind its data is
+            self._control = control = open_session(self.zenoh_settings)
+            declared.append(control.declare_queryable(keys.status(self.name, self.instance), self._answer_status))
+            declared.append(control.liveliness().declare_token(keys.alive(self.name, self.instance)))
+            log.info("%s: up, recording %s to %s", self.source, self.config.key_expr, self.writer.out_dir)
+            self._serve(subs)
+        finally:
+            self._close(subs, declared)
+        return 0
+
+    def _serve(self, subs: list[Any]) -> None:
+        main = subs[0].handler
+        markers = subs[1].handler if len(subs) > 1 else None
+        idle_sleep = 0.0005
+        while not self._stop.is_set():
+            n = self._take(main, _BATCH)
+            if markers is not None:
+                self._drain_markers(markers)
+            self._housekeeping()
+            if n == 0:
+                time.sleep(idle_sleep)
+                idle_sleep = min(idle_sleep * 2, 0.01)
+            else:
+                idle_sleep = 0.0005
+
+    def _take(self, handler: Any, budget: int) -> int:
+        """Record up to ``budget`` samples waiting in the FIFO; returns how many."""
+        try_recv = handler.try_recv
+        on_sample = self.on_sample
+        n = 0
+        while n < budget:
+            try:
+                sample = try_recv()
+            except zenoh.ZError:  # undeclared (shutting down) and empty
+                break
+            if sample is None:
+                break
+            on_sample(str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding))
+            n += 1
+        if n > self.fifo_peak:
+            self.fifo_peak = n
+        return n
+
+    def _drain_markers(self, handler: Any) -> None:
+        while (sample := _try_recv(handler)) is not None:
+            with contextlib.suppress(codec.DecodeError):
+                msg = codec.decode(sample.payload.to_bytes(), str(sample.encoding))
+                if isinstance(msg, ScenarioMarker):
+                    self._marker(msg)
+
+    def _close(self, subs: list[Any], declared: list[Any]) -> None:
+        """Stop the inflow, record what already arrived (at most a FIFO's worth), finalise, close the session."""
+        handlers = [s.handler for s in subs]
+        for s in subs:
+            with contextlib.suppress(Exception):
+                s.undeclare()
+        try:
+            if handlers:
+                while self._take(handlers[0], _BATCH):
+                    pass
+            self._housekeeping(final=True)
+            self.on_stop()
+        finally:
+            for d in reversed(declared):
+                with contextlib.suppress(Exception):
+                    d.undeclare()
+            for pub in self._publishers.values():
+                with contextlib.suppress(Exception):
+                    pub.undeclare()
+            for session in (self._control, self.session):
+                if session is not None:
+                    with contextlib.suppress(Exception):
+                        session.close()
+            log.info("%s: stopped", self.source)
+
+    def _housekeeping(self, final: bool = False) -> None:
+        """After every batch: the writer's flush and rotation, the services' configuration, the diagnostics."""
+        try:
+            self.writer.poll()
+        except OSError as exc:
+            self._write_failed(self.config.key_expr, exc)
+        if self.writer.failed is not None:
+            self._write_failed(self.config.key_expr, self.writer.failed)
+        if self._status_replies is not None:
+            replies, self._status_replies = self._status_replies, None
+            self.services_seen = len(replies)
+            self.writer.put_metadata("fixstream.services", services_metadata(replies))
+        now = time.monotonic()
+        if final or now >= self._next_diag:
+            self._next_diag = now + self.config.diag_interval_s
+            self._flush_diagnostics()
+
+    # ----- one sample ------------------------------------------------------------------------------------
+    def on_sample(self, key: str, payload: bytes, encoding: str) -> None:
+        """Record one sample: valid -> its channel; anything else -> ``fixstream/rejected/<key>``."""
+        c = self.counters
+        c.received += 1
+        if len(payload) > self._max_payload:
+            detail = f"{len(payload)} bytes > max_payload_bytes {self._max_payload}: bytes not kept"
+            self._rejected(key, b"", encoding, "payload_too_large", detail, None)
+            return
+        model = self._models.get(encoding, _UNSEEN)
+        if model is _UNSEEN:
+            model = self._model_of(encoding)
+        obj: Any = None
+        try:
+            if model is None:
+                codec.model_for_encoding(encoding)  # raises the precise DecodeError
+                raise codec.DecodeError("bad_encoding", encoding)
+            obj = codec.unpack(payload)
+            msg = codec.validate(model, obj)
+        except codec.DecodeError as exc:
+            self._rejected(key, payload, encoding, exc.reason, exc.detail, obj)
+            return
+        h = msg.header
+        pair = (key, h.source)
+        if self._next_seq.get(pair) == h.seq:
+            self._next_seq[pair] = h.seq + 1
+        else:
+            self._seq_event(pair, h.seq)
+        if type(msg) is ScenarioMarker:
+            self._marker(msg)
+        stamp = h.stamp_ns
+        try:
+            self.writer.write_json(key, model, model.__pydantic_serializer__.to_json(msg), stamp)
             if self.foxglove is not None:
-                self.foxglove.write(self.writer, key, msg, self.rx_time_ns)
+                self.foxglove.write(self.writer, key, msg, 0)
         except OSError as exc:
             self._write_failed(key, exc)
             return
-        self._check_seq(key, msg)
+        if stamp > self.data_clock_ns or type(msg) is ScenarioMarker:
+            self.data_clock_ns = stamp
+        c.accepted += 1
 
-    def _check_seq(self, key: str, msg: Message) -> None:
-        h = msg.header
-        ident = (key, h.source)
-        expected = self._next_seq.get(ident)
-        self._next_seq[ident] = h.seq + 1
-        if expected is None or h.seq == expected:
-            return
-        who = h.source or "<no source>"
-        if h.seq > expected:
-            missing = h.seq - expected
-            self.lost += missing
-            self._seq_diag(key, "seq_gap", f"{missing} lost on {key} from {who}: expected seq {expected}, got {h.seq}")
-        else:
-            self._seq_diag(
-                key, "seq_reset", f"seq went back on {key} from {who}: expected {expected}, got {h.seq} (restart?)"
+    def _model_of(self, encoding: str) -> type[Message] | None:
+        try:
+            model: type[Message] | None = codec.model_for_encoding(encoding)
+        except codec.DecodeError:
+            model = None
+        if len(self._models) < 4096:  # encodings come from the network: bound what is remembered
+            self._models[encoding] = model
+        return model
+
+    def _rejected(self, key: str, payload: bytes, encoding: str, reason: str, detail: str, obj: Any) -> None:
+        """Count, record byte for byte on fixstream/rejected/<key>, and note it for the aggregated diagnostic."""
+        c = self.counters
+        c.rejected += 1
+        c.rejected_by_reason[reason] += 1
+        c.last_error, c.last_error_key = f"{reason}: {detail}", key
+        stamp = self.data_clock_ns
+        if obj is None and payload:
+            with contextlib.suppress(codec.DecodeError):
+                obj = codec.unpack(payload)
+        header = obj.get("header") if type(obj) is dict else None
+        if type(header) is dict:
+            s = header.get("stamp_ns")
+            if type(s) is int and 0 <= s <= MAX_STAMP_NS:
+                stamp = s
+            sequenced = codec.header_of(obj)
+            if sequenced is not None:
+                source, seq, _ = sequenced
+                pair = (key, source)
+                if self._next_seq.get(pair) == seq:
+                    self._next_seq[pair] = seq + 1
+                else:
+                    self._seq_event(pair, seq)
+        self._diag_since[reason] += 1
+        self._diag_example[reason] = (key, detail)
+        try:
+            self.writer.write_rejected(Rejected(key, encoding, reason, detail[:1000], payload, time.time_ns()), stamp)
+        except OSError as exc:
+            self._write_failed(key, exc)
+
+    def _seq_event(self, pair: tuple[str, str], seq: int) -> None:
+        """The seq check's slow path: hand the exception to the base's tracker, primed with what was expected."""
+        key, source = pair
+        expected = self._next_seq.get(pair)
+        if expected is None and len(self._next_seq) >= _MAX_PAIRS:
+            self._next_seq.pop(next(iter(self._next_seq)))
+        self._next_seq[pair] = seq + 1
+        if expected is None:
+            return  # the first message of a pair only sets the reference
+        tracker = self.seq
+        tracker.forget(key, source)
+        tracker.check(key, source, expected - 1)
+        check = tracker.check(key, source, seq)
+        if check.event in ("seq_gap", "seq_jump", "seq_reset", "duplicate"):
+            self._diag_since[check.event] += 1
+            what = f"{check.missing} lost" if check.event == "seq_gap" else check.event
+            who = source or "<no source>"
+            self._diag_example[check.event] = (key, f"{what} on {key} from {who}: expected {expected}, got {seq}")
+
+    # ----- scenario runs ---------------------------------------------------------------------------------
+    def _marker(self, marker: ScenarioMarker) -> None:
+        """A player's start marker: its seq counts restart; the run's metadata, attachments and services' config."""
+        source = marker.header.source
+        if not source.startswith(PLAYER_PREFIX) or marker.event != "start":
+            return  # recorded as it came, but only a player's start marker opens a run
+        self.seq.forget_source(source)
+        for pair in [p for p in self._next_seq if p[1] == source]:
+            del self._next_seq[pair]
+        self.runs[marker.scenario] += 1
+        directories = [self.config.scenarios_dir or _default_scenarios_dir()]
+        run = run_context(marker, self.runs[marker.scenario], directories, self.config.max_attachment_bytes)
+        self.current_run = run
+        self.writer.put_metadata("fixstream.run", run.metadata())
+        for name, media_type, data in run.attachments:
+            self.writer.put_attachment(name, media_type, data, marker.header.stamp_ns)
+        if self.foxglove is not None:
+            self.foxglove.converter = (
+                Converter.for_scenario(run.loaded) if run.loaded is not None else Converter(FrameContext())
             )
+        self._ask_services()
 
-    def _seq_diag(self, key: str, reason: str, detail: str) -> None:
-        self.seq_events[reason] += 1
-        log.debug("%s: %s", self.source, detail)
-        self.report(key, reason, detail, count=self.seq_events[reason], counts=dict(self.seq_events))
+    def _ask_services(self) -> None:
+        """Query every service's status in the background; the loop writes the answers as metadata."""
+        session = self._control or self.session  # the control link: replies are not held behind data
+        if session is None or (self._status_thread is not None and self._status_thread.is_alive()):
+            return
+
+        def ask() -> None:
+            out: list[dict[str, Any]] = []
+            with contextlib.suppress(Exception):
+                for reply in query_all(session, keys.STATUS_ALL, self.config.status_timeout_s):
+                    if reply.ok is not None:
+                        with contextlib.suppress(ValueError):
+                            doc = json.loads(reply.ok.payload.to_bytes())
+                            if isinstance(doc, dict):
+                                out.append(doc)
+            self._status_replies = out
+
+        self._status_thread = threading.Thread(target=ask, name="recorder-status-query", daemon=True)
+        self._status_thread.start()
+
+    # ----- diagnostics -----------------------------------------------------------------------------------
+    def _flush_diagnostics(self) -> None:
+        """One diagnostic per reason that happened since the last: how many, and the last example."""
+        if not self._diag_since:
+            return
+        pending, self._diag_since = self._diag_since, Counter()
+        for reason, n in pending.items():
+            key, detail = self._diag_example.get(reason, (self.config.key_expr, ""))
+            if reason == "write_error":
+                total, counts = self.write_errors, {"write_error": self.write_errors}
+                text = f"{n} write error(s); the file was closed (readable up to its last chunk); last: {detail}"
+            elif reason in self.counters.rejected_by_reason:
+                total, counts = self.counters.rejected_by_reason[reason], dict(self.counters.rejected_by_reason)
+                text = f"{n} payload(s) rejected ({reason}) and recorded raw on fixstream/rejected/...; last: {detail}"
+            else:
+                total, counts = self.seq.events[reason], self.seq.as_dict()
+                text = f"{n} seq event(s) ({reason}); last: {detail}"
+            self.report(key, reason, text, count=total, counts=counts)
 
     def _write_failed(self, key: str, exc: OSError) -> None:
         """A disk error: drop the current file (readable up to its last chunk) and report it."""
         self.write_errors += 1
         path = self.writer.abandon()
         log.error("%s: writing %s failed: %s", self.source, path, exc)
-        self.reject(key, "write_error", f"{path}: {exc}")
+        self.counters.last_error, self.counters.last_error_key = f"write_error: {path}: {exc}", key
+        self._diag_since["write_error"] += 1
+        self._diag_example["write_error"] = (key, f"{path}: {exc}")
+
+
+def _try_recv(handler: Any) -> Any:
+    try:
+        return handler.try_recv()
+    except zenoh.ZError:  # undeclared and empty
+        return None
+
+
+def _default_scenarios_dir() -> Path:
+    from services.player.scenario import default_dir
+
+    return default_dir()
 
 
 def build() -> RecorderService:

@@ -10,9 +10,10 @@
 ``FIXSTREAM_RECORDER_ROTATE_DURATION_S`` start a new file after this many seconds (0: never)
 ``FIXSTREAM_RECORDER_FILE_PREFIX``      file name prefix: ``<prefix>_<UTC>_<nnn>.mcap``
 ``FIXSTREAM_RECORDER_INSTANCE``         instance name (last chunk of the recorder's keys)
-``FIXSTREAM_RECORDER_QUEUE_SIZE``       inbound samples held before back-pressure
+``FIXSTREAM_RECORDER_QUEUE_SIZE``       samples Zenoh holds for the recorder before it holds its sender (4096)
 ``FIXSTREAM_RECORDER_FOXGLOVE``         also write Foxglove scene and map channels (default false)
-``FIXSTREAM_RECORDER_SCENARIOS_DIR``    where the start marker's scenario is looked up (frames, origin)
+``FIXSTREAM_RECORDER_SCENARIOS_DIR``    the only directory a start marker's scenario name is looked up in
+``FIXSTREAM_RECORDER_DIAG_INTERVAL_S``  the recorder's own diagnostics: one per reason per interval (1 s)
 =====================================  ==============================================================
 
 The Zenoh connection comes from ``FIXSTREAM_ZENOH_*`` (:class:`shared.settings.ZenohSettings`).
@@ -59,8 +60,29 @@ class RecorderSettings(ServiceSettings):
     )
     scenarios_dir: Path | None = Field(
         default=None,
-        description="directory the start marker's scenario is looked up in for the Foxglove channels' frames and "
-        "geodetic origin (default $FIXSTREAM_SCENARIOS_DIR or scenarios)",
+        description="the only directory a start marker's scenario name is looked up in (a plain name, never a path):"
+        " its YAML and maps are attached, its frames and origin feed the Foxglove channels"
+        " (default $FIXSTREAM_SCENARIOS_DIR or scenarios)",
+    )
+    queue_size: int = Field(
+        default=4096,
+        ge=16,
+        le=1 << 20,
+        description="samples Zenoh holds for the recorder (a FIFO) before it holds the sender back; with the open chunk"
+        " this is all a SIGKILL can lose",
+    )
+    diag_interval_s: float = Field(
+        default=1.0,
+        gt=0.0,
+        le=3600.0,
+        description="the recorder's own diagnostics (rejections, seq gaps) are aggregated: one per reason per interval"
+        " (the payloads themselves are recorded on fixstream/rejected/<key>), s",
+    )
+    status_timeout_s: float = Field(
+        default=2.0, gt=0.0, le=60.0, description="how long a start marker's query of the services' status waits, s"
+    )
+    max_attachment_bytes: int = Field(
+        default=4 << 20, ge=0, description="largest scenario file or map attached to the recording, bytes"
     )
 
     @field_validator("file_prefix")

@@ -20,6 +20,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("tools.cli.run", "run a service by name (recorder, lbl_nav, ...)"),
     "play": ("tools.cli.play", "play a scenario YAML or replay an MCAP recording onto Zenoh"),
     "record": ("tools.cli.record", "record Zenoh streams to MCAP"),
+    "info": ("tools.cli.info", "what a recording holds (like ros2 bag info); --recover finalises a killed one"),
     "echo": ("tools.cli.echo", "print decoded messages on a key expression"),
     "status": ("tools.cli.status", "query every service's status"),
     "scenarios": ("tools.cli.scenarios", "list, show and validate scenario files"),

@@ -23,6 +23,9 @@ _FIELDS = (
     "rotate_duration_s",
     "file_prefix",
     "instance",
+    "queue_size",
+    "scenarios_dir",
+    "diag_interval_s",
 )
 
 
@@ -32,12 +35,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--compression", choices=["zstd", "lz4", "none"], help="chunk compression (default zstd)")
     parser.add_argument("--chunk-size-bytes", type=int, help="uncompressed chunk size, bytes (default 1 MiB)")
     parser.add_argument(
-        "--chunk-flush-s", type=float, help="max seconds a message waits in an open chunk (default 1.0)"
+        "--chunk-flush-s",
+        type=float,
+        help="max seconds a message waits in an open chunk: with the FIFO, what a SIGKILL can lose (default 1.0)",
     )
     parser.add_argument("--rotate-size-mb", type=float, help="new file after this many MB; 0: off (default 1024)")
     parser.add_argument("--rotate-duration-s", type=float, help="new file after this many seconds; 0: off (default)")
     parser.add_argument("--file-prefix", help="file name prefix (default fixstream)")
     parser.add_argument("--instance", help="instance name for the status/diag/alive keys (default 'default')")
+    parser.add_argument("--queue-size", type=int, help="samples Zenoh holds for the recorder (a FIFO; default 4096)")
+    parser.add_argument("--scenarios-dir", help="the only directory start markers' scenario names are looked up in")
+    parser.add_argument(
+        "--diag-interval-s", type=float, help="one diagnostic per reason per this many seconds (default 1.0)"
+    )
     add_zenoh_arguments(parser)
 
 

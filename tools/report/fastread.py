@@ -141,7 +141,12 @@ def read_messages(path: Path, on_message: Callable[[str, Message], None], on_for
                 usize, crc = unpack("<QI", buf, body + 16)
                 compression, q = _string(buf, body + 28)
                 (clen,) = unpack("<Q", buf, q)
-                raw = _decompress(compression, buf[q + 8 : q + 8 + clen], usize)
+                try:
+                    raw = _decompress(compression, buf[q + 8 : q + 8 + clen], usize)
+                except Fallback:
+                    raise
+                except Exception as exc:  # zstd/lz4 raise their own types on corrupt data: mcap_io names it
+                    raise Fallback(f"{compression}: {exc}") from None
                 if len(raw) != usize or (crc != 0 and zlib.crc32(raw) != crc):
                     raise Fallback("chunk size or CRC")
                 if records(raw, 0, len(raw)) < 0:

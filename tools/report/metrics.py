@@ -18,6 +18,7 @@ import importlib
 import traceback
 from typing import Any
 
+from shared.plugins import mc_module
 from tools.montecarlo import jsonable
 
 from .data import RunData
@@ -33,14 +34,14 @@ def plugin_metrics(data: RunData) -> dict[str, dict[str, Any]]:
         source = f"{est.kind}/{est.instance}"
         entry: dict[str, Any] = {"kind": est.kind, "source": source, "metrics": None}
         out[est.instance] = entry
-        try:
-            plugin = importlib.import_module(f"services.{est.kind}.mc")
-        except ModuleNotFoundError as exc:
-            entry["status"] = f"no Monte-Carlo plugin (services/{est.kind}/mc.py): {exc}"
+        module = mc_module(est.kind)
+        if module is None:
+            entry["status"] = f"no Monte-Carlo plugin for {est.kind} (no plugin names an mc module)"
             continue
+        plugin = importlib.import_module(module)
         run_metrics = getattr(plugin, "run_metrics", None)
         if not callable(run_metrics):
-            entry["status"] = f"services/{est.kind}/mc.py has no run_metrics()"
+            entry["status"] = f"{module} has no run_metrics()"
             continue
         outputs = data.outputs.get(source, [])
         if not outputs:

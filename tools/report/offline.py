@@ -18,7 +18,6 @@ writes them. For the report's tests and benchmark, and to try the report on a sc
 from __future__ import annotations
 
 import heapq
-import importlib
 import os
 from collections import Counter
 from collections.abc import Iterable, Iterator, Sequence
@@ -28,6 +27,7 @@ from typing import Any
 
 from schemas import Header, Message, ScenarioMarker, Truth
 from shared import keys
+from tools.registry import load_service
 
 Item = tuple[str, Message]
 #: log time of stamp 0 in the recordings written here (2026-01-01T00:00:00Z)
@@ -86,8 +86,7 @@ def service_outputs(
     }
     service_env.update(env or {})
     with _environment(service_env):
-        module = importlib.import_module(f"services.{command[2]}.service")
-        svc = module.build()
+        svc = load_service(command[2])
     exprs = [zenoh.KeyExpr(s.key_expr) for s in svc.subscriptions()] + [zenoh.KeyExpr(f"{keys.ROOT}/scenario/**")]
     wanted = [(k, m) for k, m in feed if any(e.intersects(zenoh.KeyExpr(k)) for e in exprs)]
     return [(o.key, o.msg) for o in svc.run_offline(wanted)]

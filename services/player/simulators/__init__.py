@@ -16,11 +16,10 @@ from .base import (
     is_interactive,
     sample_stamps_ns,
 )
-from .registry import PLUGIN_MODULES, UnknownSimulator, get_simulator, known_kinds, register
+from .registry import UnknownSimulator, get_simulator, known_kinds, plugin_modules, register
 
 __all__ = [
     "NS_PER_S",
-    "PLUGIN_MODULES",
     "Event",
     "Exchange",
     "ExchangeSpec",
@@ -36,6 +35,7 @@ __all__ = [
     "get_simulator",
     "is_interactive",
     "known_kinds",
+    "plugin_modules",
     "register",
     "sample_stamps_ns",
 ]

@@ -1,8 +1,8 @@
 """The simulator registry: ``kind`` name -> simulator class.
 
 A plugin module defines a class with a ``Params`` model and decorates it with ``@register("<kind>")``.
-Modules are imported lazily, on the first lookup of their kind, from :data:`PLUGIN_MODULES`; an estimator
-issue that brings a simulator adds one line there (``"<kind>": "services.<estimator>.simulator"``).
+Modules are imported lazily, on the first lookup of their kind, from the ``simulators`` of the installed plugins
+(:mod:`shared.plugins`): an estimator names its simulator kinds in its own ``plugin.py``, nothing here names it.
 """
 
 from __future__ import annotations
@@ -11,18 +11,16 @@ import importlib
 from collections.abc import Callable
 from typing import TypeVar
 
+from shared.plugins import simulator_modules
+
 from .base import Simulator
 
-#: kind -> module that registers it (imported on first use)
-PLUGIN_MODULES: dict[str, str] = {
-    "nav_platform": "services.player.simulators.nav_platform",
-    # one per estimator issue; each module registers the kinds it simulates
-    "lbl_nav": "services.lbl_nav.simulator",
-    "terrain_nav": "services.terrain_nav.simulator",
-    "rd_group": "services.rd_nav.simulator",
-    "pcl_tracker": "services.pcl_tracker.simulator",
-    "attitude": "services.attitude.simulator",
-}
+
+def plugin_modules() -> dict[str, str]:
+    """kind -> module that registers it (imported on first use), from every installed plugin
+    (:func:`shared.plugins.simulator_modules`)."""
+    return simulator_modules()
+
 
 _REGISTRY: dict[str, type[Simulator]] = {}
 
@@ -30,7 +28,7 @@ S = TypeVar("S")
 
 
 class UnknownSimulator(KeyError):
-    """No simulator of that kind is registered or listed in :data:`PLUGIN_MODULES`."""
+    """No simulator of that kind is registered or named by a plugin."""
 
     def __str__(self) -> str:
         return str(self.args[0])
@@ -52,14 +50,15 @@ def register(kind: str) -> Callable[[S], S]:
 
 
 def known_kinds() -> list[str]:
-    return sorted(set(_REGISTRY) | set(PLUGIN_MODULES))
+    return sorted(set(_REGISTRY) | set(plugin_modules()))
 
 
 def get_simulator(kind: str) -> type[Simulator]:
     """The simulator class for ``kind`` (imports its plugin module if needed)."""
     cls = _REGISTRY.get(kind)
-    if cls is None and kind in PLUGIN_MODULES:
-        importlib.import_module(PLUGIN_MODULES[kind])
+    modules = plugin_modules()
+    if cls is None and kind in modules:
+        importlib.import_module(modules[kind])
         cls = _REGISTRY.get(kind)
     if cls is None:
         raise UnknownSimulator(f"unknown simulator kind {kind!r}; known kinds: {', '.join(known_kinds())}")
