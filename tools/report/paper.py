@@ -143,7 +143,7 @@ def _rd_errors(head: dict[str, Any], m: dict[str, Any] | None) -> Iterator[tuple
 def _pcl_pos(head: dict[str, Any], m: dict[str, Any] | None) -> Iterator[tuple[str, str, str, str]]:
     v = _num(head.get("pos_rmse_second_half_m"))
     if v is None:
-        yield "", "no confirmed track on a target", NO_DATA, ""
+        yield "", "no confirmed track on a target in the second half of the run", NO_DATA, ""
         return
     yield "", f"{_g(v)} m (second half of the run)", PASS if v < 50.0 else OUTSIDE, ""
 
@@ -151,7 +151,7 @@ def _pcl_pos(head: dict[str, Any], m: dict[str, Any] | None) -> Iterator[tuple[s
 def _pcl_vel(head: dict[str, Any], m: dict[str, Any] | None) -> Iterator[tuple[str, str, str, str]]:
     v = _num(head.get("vel_rmse_second_half_mps"))
     if v is None:
-        yield "", "no target velocity to compare", NO_DATA, ""
+        yield "", "no target velocity to compare in the second half of the run", NO_DATA, ""
         return
     yield "", f"{_g(v)} m/s (second half of the run)", PASS if v <= 2.0 else OUTSIDE, ""
 

@@ -65,6 +65,7 @@ def _section(data: RunData, source: str, entry: dict[str, Any] | None) -> Sectio
     tpos = {name: data.truth[name].at(scan_t) for name in known}
     tvel = {name: data.truth[name].vel_at_many(scan_t) for name in known}
     own_ospa = not (m and m.get("ospa_m"))
+    matched: set[tuple[int, int]] = set()  # (scan index, track id) of the confirmed tracks matched to a target
     for k, rep in enumerate(scans):
         t = float(scan_t[k])
         conf = [tr for tr in rep.tracks if tr.status == "CONFIRMED"]
@@ -76,6 +77,7 @@ def _section(data: RunData, source: str, entry: dict[str, Any] | None) -> Sectio
         for i, j in match_tracks(tp, gp, match_d):
             tr = conf[i]
             name = alive[j]
+            matched.add((k, tr.track_id))
             track_target.setdefault(tr.track_id, name)
             v = tvel[name][k]
             truth_vel = v if np.all(np.isfinite(v)) else None
@@ -108,18 +110,23 @@ def _section(data: RunData, source: str, entry: dict[str, Any] | None) -> Sectio
             if row[4] is not None:
                 vel_err.append((row[0], float(np.linalg.norm(row[1][3:] - row[4]))))
     truths = {n: data.truth[n].pos[:, :2] for n in targets if n in data.truth}
-    conf_pts = [
-        (np.asarray(tr.state_enu[:2]), np.asarray(tr.cov_enu)[:3, :3])
-        for rep in scans
-        for tr in rep.tracks
-        if tr.status == "CONFIRMED"
-    ]
+    # confirmed tracks: per target they followed (its colour, its panel), and those matched to none
     plan: dict[str, tuple[Any, Any]] = {
-        "confirmed tracks": (
-            np.array([p for p, _ in conf_pts]).reshape(-1, 2),
-            np.array([c for _, c in conf_pts]).reshape(-1, 3, 3),
-        )
+        name: (np.array([row[1][:2] for row in rows]), np.array([row[3][:3, :3] for row in rows]))
+        for name, rows in per_target.items()
+        if rows
     }
+    unmatched = [
+        (np.asarray(tr.state_enu[:2]), np.asarray(tr.cov_enu)[:3, :3])
+        for k, rep in enumerate(scans)
+        for tr in rep.tracks
+        if tr.status == "CONFIRMED" and (k, tr.track_id) not in matched
+    ]
+    if unmatched:
+        plan["confirmed, matched to no target"] = (
+            np.array([p for p, _ in unmatched]).reshape(-1, 2),
+            np.array([c for _, c in unmatched]).reshape(-1, 3, 3),
+        )
     points = {"receiver": np.zeros((1, 2))}
     if par.get("tx") is not None:
         points["illuminator"] = np.asarray([par["tx"][:2]], dtype=np.float64)

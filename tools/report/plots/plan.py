@@ -23,6 +23,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure as MplFigure
+from matplotlib.ticker import FuncFormatter
 
 from shared.foxglove.frames import F64
 
@@ -37,6 +38,8 @@ PAD = 0.08
 MAX_ASPECT = 6.0
 #: an overview is drawn beside a single track only if the scene is this much larger than the track
 OVERVIEW_RATIO = 1.6
+#: panels wider than this are labelled in km
+KM_ABOVE_M = 20_000.0
 
 
 @dataclass(frozen=True)
@@ -121,16 +124,44 @@ def _panel(
     box: Box | None,
     title: str,
     size_in: tuple[float, float],
+    own: str | None = None,
 ) -> None:
+    """One panel; ``own``: the track it is about — the other tracks and their estimates are drawn faint grey,
+    without ellipses, so a panel shows its own track even where tracks cross."""
+    names = list(truths)
+
+    def other(series: str) -> bool:
+        owner = owner_of(series, names)
+        return own is not None and owner is not None and owner != own
+
     for name, xy in truths.items():
         v = _visible(xy, box)
-        ax.plot(v[:, 0], v[:, 1], "-", color=colors[name], lw=1.4, label=f"{name} truth")
+        faint = other(name)
+        ax.plot(
+            v[:, 0],
+            v[:, 1],
+            "-",
+            color="0.8" if faint else colors[name],
+            lw=0.8 if faint else 1.4,
+            label=f"{name} truth",
+            zorder=1 if faint else 3,
+        )
     shown = [(n, xy, c) for n, (xy, c) in estimates.items() if len(xy)]
-    per_series = max(1, MAX_ELLIPSES // max(1, len(shown)))
+    per_series = max(1, MAX_ELLIPSES // max(1, sum(1 for n, _, _ in shown if not other(n))))
     for name, xy, covs in shown:
         v = _visible(xy, box)
-        ax.plot(v[:, 0], v[:, 1], ".", ms=3.5, color=colors[name], alpha=0.85, label=f"{name} estimate")
-        if covs is None or not len(covs):
+        faint = other(name)
+        ax.plot(
+            v[:, 0],
+            v[:, 1],
+            ".",
+            ms=2.0 if faint else 3.5,
+            color="0.8" if faint else colors[name],
+            alpha=0.85,
+            label=f"{name} estimate",
+            zorder=1 if faint else 2,
+        )
+        if faint or covs is None or not len(covs):
             continue
         idx = np.flatnonzero(box.inside(xy) if box is not None else np.ones(len(xy), dtype=bool))
         for k in idx[:: max(1, idx.size // per_series)] if idx.size else []:
@@ -157,6 +188,13 @@ def _panel(
         ax.set_ylim(b.y0, b.y1)
     else:
         ax.set_aspect("equal", adjustable="datalim")
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    if max(x1 - x0, y1 - y0) > KM_ABOVE_M:  # tens of km: tick labels in km, short enough not to collide
+        km = FuncFormatter(lambda v, _: f"{v / 1000:g}")
+        ax.xaxis.set_major_formatter(km)
+        ax.yaxis.set_major_formatter(km)
+        ax.set_xlabel("east, km")
+        ax.set_ylabel("north, km")
     ax.set_title(title)
 
 
@@ -209,14 +247,14 @@ def plan_axes(
     for xy in [*truths.values(), *(xy for xy, _ in estimates.values()), *points.values()]:
         b = Box.of(xy, robust=True)
         scene = b if scene is None else scene.union(b) if b is not None else scene
-    panels: list[tuple[Box | None, str]] = []
+    panels: list[tuple[Box | None, str, str | None]] = []
     if len(boxes) == 1 and scene is not None and scene.diag <= OVERVIEW_RATIO * next(iter(boxes.values())).diag:
-        panels.append((scene, "the whole scene"))
+        panels.append((scene, "the whole scene", None))
     else:
-        panels.append((None, "the whole scene"))
+        panels.append((None, "the whole scene", None))
         for t, box in boxes.items():
             w, h = box.spans
-            panels.append((box, f"{t}: its track, {_km(w)} × {_km(h)}"))
+            panels.append((box, f"{t}: its track, {_km(w)} × {_km(h)}", t))
     n = len(panels)
     cols = 1 if n == 1 else 2 if n in (2, 4) else 3
     rows = math.ceil(n / cols)
@@ -228,9 +266,9 @@ def plan_axes(
     fig, axs = plt.subplots(rows, cols, figsize=(FIG_WIDTH_IN, fig_h), squeeze=False)
     apply_margins(fig, **margins)  # before drawing: the zoomed panels fit their limits to their shape
     drawn: list[tuple[Axes, Box | None]] = []
-    for i, (box, ptitle) in enumerate(panels):
+    for i, (box, ptitle, own) in enumerate(panels):
         ax = axs[i // cols][i % cols]
-        _panel(ax, truths, estimates, points, colors, box, ptitle, (FIG_WIDTH_IN, fig_h))
+        _panel(ax, truths, estimates, points, colors, box, ptitle, (FIG_WIDTH_IN, fig_h), own)
         drawn.append((ax, box))
     for j in range(n, rows * cols):
         axs[j // cols][j % cols].set_visible(False)
@@ -238,8 +276,10 @@ def plan_axes(
     if labels:
         fig.legend(handles, labels, loc="lower center", ncol=min(4, len(labels)), frameon=False, markerscale=2)
     caption = "truth: lines; estimates: dots with 3σ covariance ellipses (every k-th); ▲ fixed points"
+    if len(panels) > 1:
+        caption += "; a track's own panel shows the other tracks faint grey"
     if focus:
-        caption += "; a track's own panel zooms to where it was estimated"
+        caption += " and zooms to where the track was estimated"
     if len(names) > MAX_TRACK_PANELS:
         caption += f"; zoomed panels for the first {MAX_TRACK_PANELS} of {len(names)} tracks"
     return fig, drawn, caption, margins
