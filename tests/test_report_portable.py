@@ -52,7 +52,7 @@ def recordings(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         bare,
         tmp / "carried.mcap",
         [scenario_attachment(SCENARIO)],
-        {"fixstream.run": {"scenario": scenario.name, "seed": str(scenario.seed), "run_index": "0"}},
+        {"fixstream.run": {"scenario": scenario.name, "seed": str(scenario.seed), "run_index": "1"}},
     )
     return {"tmp": tmp, "bare": bare, "carried": carried}
 
@@ -94,7 +94,7 @@ def test_a_copied_recording_reports_the_same_metrics_from_an_empty_directory(
     entry = away["estimators"]["tan1"]
     assert entry["status"] == "ok" and entry["metrics"]["n_fixes"] > 0, entry.get("status")
     assert away["run"]["scenario_file"] == "scenario/terrain_nav_demo.yaml (attached to the recording)"
-    assert away["run"]["run_index"] == 0 and away["run"]["seed"] == load_scenario(SCENARIO).seed
+    assert away["run"]["recorder_run"] == 1 and away["run"]["seed"] == load_scenario(SCENARIO).seed
 
 
 def test_the_attached_scenario_scores_as_the_repository_file_does(
@@ -108,7 +108,7 @@ def test_the_attached_scenario_scores_as_the_repository_file_does(
     assert looked_up["run"]["scenario_file"] == "scenarios/terrain_nav_demo.yaml"
     for key in ("estimators", "sections", "verdicts", "diagnostics"):
         assert carried[key] == looked_up[key], key
-    assert looked_up["run"]["run_index"] is None and carried["run"]["metadata"] == ["fixstream.run"]
+    assert looked_up["run"]["recorder_run"] is None and carried["run"]["metadata"] == ["fixstream.run"]
 
 
 def test_without_the_attachment_an_empty_directory_says_what_is_missing(recordings: dict[str, Path]) -> None:

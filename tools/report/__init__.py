@@ -15,9 +15,9 @@ Pipeline (one module each):
 The scenario and the run's facts come from the recording itself when it carries them (:mod:`.carried`), so a
 recording copied anywhere gives the same report.
 
-``metrics.json``: ``run`` (file names, scenario and where it came from, seed, run index, counts), ``estimators``
-(per scenario instance: kind, source, status and the plugin's ``metrics``), ``sections`` (per section: kind,
-instance, headline), ``verdicts`` (per paper figure: what, the paper's number, this run's, the verdict),
+``metrics.json``: ``run`` (file names, scenario and where it came from, seed, the recorder's run count, counts),
+``estimators`` (per scenario instance: kind, source, status and the plugin's ``metrics``), ``sections`` (per
+section: kind, instance, headline), ``verdicts`` (per paper figure: what, the paper's number, this run's, the verdict),
 ``diagnostics`` (per service, the last running counts of its diagnostics), ``notes``, ``foreign_channels``.
 """
 
@@ -132,7 +132,7 @@ def _report(
             "scenario": data.scenario_name,
             "scenario_file": data.scenario_origin,
             "seed": data.seed,
-            "run_index": data.run_index,
+            "recorder_run": data.run_index,
             "metadata": carried.metadata_names,
             "messages": len(rec.items),
             "events": len(data.events),

@@ -6,7 +6,8 @@ scenario up by name, what the recorder wrote into the file (docs/recorder.md, is
 * **attachments**: the scenario YAML as played, named ``scenario/<file>.yaml`` (or ``scenario.yaml``), and the
   maps it names (not needed by the report: the figures and metrics use the published outputs and the truth);
 * **metadata**: the record ``fixstream.run`` (or ``fixstream``) with ``scenario``, ``seed`` and ``run_index``
-  (``run``) — the facts of the run when the start marker is missing.
+  (``run``: the recorder's count of this scenario's runs, 1 for the first) — the run's facts when the start marker
+  is missing.
 
 Read with the ``mcap`` package's reader: a finalised file through its summary's indexes (a few seeks), an
 unfinalised one by a linear scan. A file whose attachments or metadata cannot be read contributes nothing here

@@ -111,7 +111,8 @@ class RunData:
     scenario_origin: str | None
     scenario_name: str | None
     seed: int | None
-    #: the Monte-Carlo run index the player played (``fixstream play --run``), from the run metadata
+    #: the recorder's count of this scenario's runs, 1 for the first (``run_index`` of its ``fixstream.run``
+    #: metadata; not the Monte-Carlo run of ``fixstream play --run``)
     run_index: int | None
     ctx: FrameContext
     events: list[Event]

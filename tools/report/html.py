@@ -204,8 +204,8 @@ def _run_facts(run: dict[str, Any]) -> str:
         f"scenario <b>{e(str(scenario))}</b>" + (f" ({e(origin)})" if origin else " (no scenario file)"),
         f"seed {e(fmt(run.get('seed')))}",
     ]
-    if run.get("run_index") is not None:
-        parts.append(f"run {e(fmt(run.get('run_index')))}")
+    if (run.get("recorder_run") or 1) > 1:
+        parts.append(f"the recorder's run {e(fmt(run.get('recorder_run')))} of this scenario")
     return "<p class='meta'>" + " · ".join(parts) + "</p>"
 
 
