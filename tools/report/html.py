@@ -269,7 +269,7 @@ def render_html(report: dict[str, Any], sections: list[Section], verdicts: list[
         for k, fig in enumerate(s.figures):
             parts.append(_figure(f"{i}-{k}", fig))
     diags = report.get("diagnostics", {})
-    parts.append("<h2 id='diagnostics'>Diagnostics: inputs each service dropped, by reason</h2>")
+    parts.append("<h2 id='diagnostics'>Diagnostics: each service's counts by reason</h2>")
     if diags:
         parts.append("<table><tr><th>service / instance</th><th>reason: count (the last running totals)</th></tr>")
         for src, counts in sorted(diags.items()):
