@@ -286,7 +286,9 @@ def plan_axes(
 
 
 def _km(metres: float) -> str:
-    return f"{metres / 1000:.3g} km" if metres >= 2000 else f"{metres:.3g} m"
+    if metres >= 2000:
+        return f"{metres / 1000:.3g} km"
+    return f"{metres:.0f} m" if metres >= 100 else f"{metres:.3g} m"
 
 
 __all__ = ["MAX_TRACK_PANELS", "Box", "owner_of", "plan_axes", "plan_figure"]
