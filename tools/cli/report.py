@@ -1,14 +1,21 @@
-"""``fixstream report RECORDING.mcap|DIR ... [--out DIR]``: an evaluation report of a recording.
+"""``fixstream report RECORDING.mcap|DIR [--out DIR]``: an evaluation report of one recording.
 
 Writes ``index.html`` (self-contained: plots embedded, opens offline) and ``metrics.json`` to ``--out``
-(default ``<recording>_report/`` beside the first file) and prints the page's path. Per estimator found in the
-recording: plan view against truth, error against time with ±3σ, NEES with its χ² band and the estimator's own
-story; a summary table with the papers' figures on top. The scenario comes from the recording's start marker
-(looked up in ``--scenarios-dir``) or ``--scenario``; with it, each estimator's ``fixstream mc`` metrics are
-computed from what it published (equal to ``fixstream mc`` on the same scenario, seed and run).
+(default ``<recording>_report/`` beside the first file) and prints their paths. On top, a verdict per estimator
+against its paper's figure; then per estimator found in the recording: plan views against truth (the whole
+scene and each track zoomed), error against time with ±3σ per platform, NEES with its χ² band and the
+estimator's own story.
 
-Exit status: 0 written; 2 the recording (or scenario) cannot be used — the message names the file and the
-problem (a truncated file: ``--allow-truncated`` reports its readable part).
+One recording per report: a directory means its newest recording (a note names the others); several files must
+be the rotated parts of one recording. ``--all`` merges several recordings into one report.
+
+The scenario: ``--scenario``; else the one attached to the recording (so the file alone, copied anywhere, gives
+the same report); else the start marker's name looked up in ``--scenarios-dir``. With it, each estimator's
+``fixstream mc`` metrics are computed from what it published (equal to ``fixstream mc`` on the same scenario,
+seed and run).
+
+Exit status: 0 written; 2 the recording (or scenario) cannot be used, or several recordings without ``--all`` —
+the message names the file(s) and the problem (a truncated file: ``--allow-truncated`` reports its readable part).
 """
 
 from __future__ import annotations
@@ -17,9 +24,20 @@ import argparse
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("recording", nargs="+", help="MCAP file(s) of one recording, or a directory of them")
+    parser.add_argument(
+        "recording", nargs="+", help="an MCAP file (or the rotated files of one recording), or a directory"
+    )
     parser.add_argument("--out", help="output directory (default: <recording>_report beside the first file)")
-    parser.add_argument("--scenario", help="scenario .yaml (or name) instead of the one the start marker names")
+    parser.add_argument(
+        "--all",
+        "--merge",
+        dest="merge",
+        action="store_true",
+        help="merge every recording given (or in the directory) into one report (default: one recording, the newest)",
+    )
+    parser.add_argument(
+        "--scenario", help="scenario .yaml (or name) instead of the one the recording carries or its marker names"
+    )
     parser.add_argument(
         "--scenarios-dir", help="where scenario names are looked up (default $FIXSTREAM_SCENARIOS_DIR or scenarios)"
     )
@@ -43,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
             allow_truncated=args.allow_truncated,
             progress=not args.no_progress,
             workers=args.workers,
+            merge=args.merge,
         )
     except ReportError as exc:
         print(f"fixstream report: {exc}", file=sys.stderr)

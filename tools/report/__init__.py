@@ -7,13 +7,18 @@ Pipeline (one module each):
    truth in one frame (:mod:`shared.foxglove.frames`);
 3. :mod:`.metrics` — each estimator's ``fixstream mc`` plugin (``run_metrics``) on what it published, so the
    JSON equals ``fixstream mc`` for the same scenario, seed and run;
-4. :mod:`.plots` — one module per estimator: plan view, error with ±3σ, NEES with its χ² band, and the
-   estimator's own story; headline numbers for the summary (beside the papers' figures, :mod:`.paper`);
-5. :mod:`.html` — the page.
+4. :mod:`.plots` — one module per estimator: plan views (the scene and each track zoomed), error with ±3σ per
+   platform, NEES with its χ² band, and the estimator's own story; headline numbers;
+5. :mod:`.paper` — each headline against the figures the estimator's paper reports: pass / outside;
+6. :mod:`.html` — the page.
 
-``metrics.json``: ``run`` (files, scenario, seed, counts), ``estimators`` (per scenario instance: kind, source,
-status and the plugin's ``metrics``), ``sections`` (per section: kind, instance, headline), ``diagnostics``
-(per service, the last running counts of its diagnostics), ``notes``, ``foreign_channels``.
+The scenario and the run's facts come from the recording itself when it carries them (:mod:`.carried`), so a
+recording copied anywhere gives the same report.
+
+``metrics.json``: ``run`` (file names, scenario and where it came from, seed, the recorder's run count, counts),
+``estimators`` (per scenario instance: kind, source, status and the plugin's ``metrics``), ``sections`` (per
+section: kind, instance, headline), ``verdicts`` (per paper figure: what, the paper's number, this run's, the verdict),
+``diagnostics`` (per service, the last running counts of its diagnostics), ``notes``, ``foreign_channels``.
 """
 
 from __future__ import annotations
@@ -57,27 +62,34 @@ def make_report(
     allow_truncated: bool = False,
     progress: bool = True,
     workers: int | None = None,
+    merge: bool = False,
 ) -> ReportResult:
     """Read, compute, plot and write ``index.html`` and ``metrics.json`` (raises :class:`ReportError`).
 
-    The sections are drawn by up to ``workers`` processes (default: the CPUs, at most 4; forked, so they share
-    the decoded recording; 1 or a platform without ``fork``: in this process)."""
-    from .reading import input_files, read_recording
+    One recording per report: a directory means its newest recording, several files must be one recording's
+    rotated parts, unless ``merge`` (``--all``; :func:`.reading.select_recording`). The sections are drawn by up
+    to ``workers`` processes (default: the CPUs, at most 4; forked, so they share the decoded recording; 1 or a
+    platform without ``fork``: in this process)."""
+    from .carried import read_carried
+    from .reading import read_recording, select_recording
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    files = input_files(paths)
-    rec = read_recording(files, allow_truncated=allow_truncated, progress=progress)
+    files, selection_notes = select_recording(paths, merge=merge)
+    rec = read_recording(files, allow_truncated=allow_truncated, progress=progress, merge=merge)
+    rec.notes[:0] = selection_notes
+    carried = read_carried(files)
     timings["read_s"] = time.perf_counter() - t0
     gc.freeze()  # the decoded messages live to the end: keep the collector from rescanning them
     try:
-        return _report(rec, files, out_dir, scenario, scenarios_dir, progress, timings, t0, workers)
+        return _report(rec, carried, files, out_dir, scenario, scenarios_dir, progress, timings, t0, workers)
     finally:
         gc.unfreeze()
 
 
 def _report(
     rec: Any,
+    carried: Any,
     files: list[Path],
     out_dir: str | os.PathLike[str] | None,
     scenario: str | os.PathLike[str] | None,
@@ -92,10 +104,11 @@ def _report(
     from .data import run_data
     from .html import render_html
     from .metrics import plugin_metrics
+    from .paper import verdicts
     from .plots import section_modules
 
     t = time.perf_counter()
-    data = run_data(rec, scenario, scenarios_dir)
+    data = run_data(rec, scenario, scenarios_dir, carried)
     metrics = plugin_metrics(data)
     timings["metrics_s"] = time.perf_counter() - t
     t = time.perf_counter()
@@ -108,12 +121,19 @@ def _report(
         if note:
             data.notes.append(note)
     timings["plots_s"] = time.perf_counter() - t
+    rows = [
+        v
+        for sec in sections
+        for v in verdicts(sec.kind, sec.instance, sec.headline, (metrics.get(sec.instance) or {}).get("metrics"))
+    ]
     report: dict[str, Any] = {
         "run": {
-            "files": [str(f) for f in files],
+            "files": [f.name for f in files],
             "scenario": data.scenario_name,
-            "scenario_file": str(data.scenario_path) if data.scenario_path else None,
+            "scenario_file": data.scenario_origin,
             "seed": data.seed,
+            "recorder_run": data.run_index,
+            "metadata": carried.metadata_names,
             "messages": len(rec.items),
             "events": len(data.events),
             "t_end_s": data.t_end_s,
@@ -121,6 +141,7 @@ def _report(
         },
         "estimators": metrics,
         "sections": [{"kind": s.kind, "instance": s.instance, "headline": s.headline} for s in sections],
+        "verdicts": [v.as_json() for v in rows],
         "diagnostics": data.diagnostics,
         "notes": data.notes,
         "foreign_channels": dict(rec.foreign),
@@ -132,7 +153,7 @@ def _report(
         metrics_path = out / METRICS
         metrics_path.write_text(json.dumps(report, indent=2, sort_keys=True, allow_nan=False) + "\n")
         html_path = out / INDEX
-        html_path.write_text(render_html(report, sections))
+        html_path.write_text(render_html(report, sections, rows))
     except OSError as exc:
         raise ReportError(f"{out}: cannot write the report: {exc.strerror or exc}") from None
     timings["total_s"] = time.perf_counter() - t0

@@ -1,9 +1,11 @@
 """A recording split the way the metrics and the plots need it.
 
 * **The scenario.** The player's start marker (``fixstream/scenario/<name>``) names the scenario and carries
-  the seed. The file is ``--scenario`` if given, else the marker's name looked up in the scenarios directory
-  (``--scenarios-dir``, default ``$FIXSTREAM_SCENARIOS_DIR`` or ``scenarios/``) exactly as ``fixstream play``
-  looks names up. Without it the report still draws every estimator, but has no Monte-Carlo metrics.
+  the seed (without a marker: the recording's ``fixstream.run`` metadata, :mod:`.carried`). The scenario is
+  ``--scenario`` if given; else the one of that name attached to the recording (so a recording copied anywhere
+  reports the same); else the name looked up in the scenarios directory (``--scenarios-dir``, default
+  ``$FIXSTREAM_SCENARIOS_DIR`` or ``scenarios/``) as ``fixstream play`` looks names up. Without one the report
+  still draws every estimator, but has no Monte-Carlo metrics.
 * **Events**: what the player (or a sensor) published — every message from a ``player/*`` source and every
   message on ``fixstream/sensor/**`` and ``fixstream/truth/**``, markers excepted — as
   :class:`~services.player.simulators.Event` s in recorded order (the order ``fixstream mc`` feeds its plugins,
@@ -24,13 +26,23 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from schemas import Diagnostic, ScenarioMarker, Truth
-from services.player.scenario import Scenario, ScenarioError, load_scenario, resolve
+from services.player.scenario import (
+    Scenario,
+    ScenarioError,
+    default_dir,
+    load_scenario,
+    parse_scenario,
+    resolve,
+    scenario_files,
+)
 from services.player.simulators import Event
 from shared import keys
 from shared.foxglove.frames import F64, FrameContext
 
+from .carried import Carried
 from .reading import Recording, ReportError
 
 _SENSOR_OR_TRUTH = (f"{keys.ROOT}/sensor/", f"{keys.ROOT}/truth/")
@@ -95,9 +107,13 @@ class RunData:
 
     recording: Recording
     scenario: Scenario | None
-    scenario_path: Path | None
+    #: where the scenario came from: a file path or ``<attachment> (attached to the recording)``
+    scenario_origin: str | None
     scenario_name: str | None
     seed: int | None
+    #: the recorder's count of this scenario's runs, 1 for the first (``run_index`` of its ``fixstream.run``
+    #: metadata; not the Monte-Carlo run of ``fixstream play --run``)
+    run_index: int | None
     ctx: FrameContext
     events: list[Event]
     outputs: dict[str, list[Event]]
@@ -129,34 +145,84 @@ def _dir(d: str | os.PathLike[str] | None) -> Path | None:
     return None if d is None else Path(d)
 
 
+@dataclass
+class ScenarioChoice:
+    """The scenario the report uses and where it came from."""
+
+    scenario: Scenario | None
+    #: where it came from: a file path, or ``<attachment> (attached to the recording)``; None: no scenario
+    origin: str | None
+    name: str | None
+    seed: int | None
+    run_index: int | None
+    notes: list[str] = field(default_factory=list)
+
+
 def find_scenario(
-    rec: Recording, scenario: str | os.PathLike[str] | None, scenarios_dir: str | os.PathLike[str] | None
-) -> tuple[Scenario | None, Path | None, str | None, int | None, list[str]]:
-    """(scenario, its file, its name, seed, notes) from ``--scenario`` or the start marker."""
+    rec: Recording,
+    scenario: str | os.PathLike[str] | None,
+    scenarios_dir: str | os.PathLike[str] | None,
+    carried: Carried | None = None,
+) -> ScenarioChoice:
+    """The scenario of the recording: ``--scenario`` if given; else the one the start marker (or the run
+    metadata) names — first as attached to the recording, so a copied file reports the same anywhere, then looked
+    up by name in the scenarios directory as ``fixstream play`` looks names up (a bare name only: a marker
+    naming a path opens nothing)."""
+    carried = carried or Carried()
     notes: list[str] = []
     starts = [m for _, m in rec.markers if m.event == "start"]
-    name = starts[0].scenario if starts else None
-    seed = starts[0].seed if starts else None
+    name = starts[0].scenario if starts else carried.run_scenario
+    seed = starts[0].seed if starts else carried.run_seed
+    run_index = carried.run_index
     if len(starts) > 1:
         notes.append(f"the recording holds {len(starts)} scenario runs; their data are reported together")
     if scenario is not None:
         try:
             path = Path(scenario)
-            sc = load_scenario(path if path.is_file() else resolve(str(scenario), _dir(scenarios_dir)))
+            path = path if path.is_file() else resolve(str(scenario), _dir(scenarios_dir))
+            sc = load_scenario(path)
         except ScenarioError as exc:
             raise ReportError(f"--scenario: {exc}") from None
         if name is not None and sc.name != name:
             notes.append(f"the recording's start marker names scenario {name!r}; reported with {sc.name!r}")
-        return sc, Path(scenario), sc.name, seed, notes
+        return ScenarioChoice(sc, str(path), sc.name, seed, run_index, notes)
+    attached = carried.scenario_for(name)
+    if attached is not None:
+        try:
+            sc = parse_scenario(attached.document, attached.name)
+            return ScenarioChoice(sc, f"{attached.name} (attached to the recording)", sc.name, seed, run_index, notes)
+        except ScenarioError as exc:
+            notes.append(f"the scenario attached to the recording ({attached.name}) is not valid here: {exc}")
     if name is None:
         notes.append("no scenario start marker in the recording: no scenario, no Monte-Carlo metrics")
-        return None, None, None, None, notes
+        return ScenarioChoice(None, None, None, None, run_index, notes)
     try:
-        path = resolve(name, _dir(scenarios_dir))
-        return load_scenario(path), path, name, seed, notes
+        path = _by_name(name, _dir(scenarios_dir) or default_dir())
+        return ScenarioChoice(load_scenario(path), str(path), name, seed, run_index, notes)
     except ScenarioError as exc:
-        notes.append(f"scenario {name!r} of the start marker not found ({exc}); give it with --scenario")
-        return None, None, name, seed, notes
+        notes.append(
+            f"scenario {name!r} of the start marker: not attached to the recording, not found by name ({exc}); "
+            "give it with --scenario"
+        )
+        return ScenarioChoice(None, None, name, seed, run_index, notes)
+
+
+def _by_name(name: str, directory: Path) -> Path:
+    """The file of the scenario called ``name`` in ``directory``: ``<name>.yaml|.yml`` or a file there whose
+    ``name:`` it is. A name from the recording is a name, never a path (a marker naming ``../x`` opens nothing)."""
+    if not name or any(c in name for c in "/\\\0") or name.startswith(".") or len(name) > 256:
+        raise ScenarioError(f"{name!r} is not a scenario name (names only, no paths)")
+    for suffix in (".yaml", ".yml"):
+        if (directory / f"{name}{suffix}").is_file():
+            return directory / f"{name}{suffix}"
+    for f in scenario_files(directory):
+        try:
+            doc = yaml.safe_load(f.read_text())
+        except (OSError, yaml.YAMLError, UnicodeDecodeError):
+            continue
+        if isinstance(doc, dict) and doc.get("name") == name:
+            return f
+    raise ScenarioError(f"no scenario named {name!r} in {directory}/")
 
 
 def split(rec: Recording, scenario: Scenario | None) -> tuple[list[Event], dict[str, list[Event]], dict[str, Any]]:
@@ -211,25 +277,30 @@ def truth_series(items: list[Event], ctx: FrameContext) -> dict[str, TruthSeries
 
 
 def run_data(
-    rec: Recording, scenario: str | os.PathLike[str] | None = None, scenarios_dir: str | os.PathLike[str] | None = None
+    rec: Recording,
+    scenario: str | os.PathLike[str] | None = None,
+    scenarios_dir: str | os.PathLike[str] | None = None,
+    carried: Carried | None = None,
 ) -> RunData:
     """Split a read recording (see the module doc)."""
-    sc, path, name, seed, notes = find_scenario(rec, scenario, scenarios_dir)
+    choice = find_scenario(rec, scenario, scenarios_dir, carried)
+    sc = choice.scenario
     ctx = FrameContext.from_scenario(sc)
     events, outputs, diags = split(rec, sc)
     return RunData(
         recording=rec,
         scenario=sc,
-        scenario_path=path,
-        scenario_name=name,
-        seed=seed,
+        scenario_origin=choice.origin,
+        scenario_name=choice.name,
+        seed=choice.seed,
+        run_index=choice.run_index,
         ctx=ctx,
         events=events,
         outputs=outputs,
         diagnostics=diags,
         truth=truth_series(events, ctx),
-        notes=[*rec.notes, *notes],
+        notes=[*rec.notes, *choice.notes],
     )
 
 
-__all__ = ["RunData", "TruthSeries", "find_scenario", "run_data", "split", "truth_series"]
+__all__ = ["RunData", "ScenarioChoice", "TruthSeries", "find_scenario", "run_data", "split", "truth_series"]

@@ -9,7 +9,10 @@ writes them. For the report's tests and benchmark, and to try the report on a sc
 * :func:`lbl_items` / :func:`rd_items` — the LBL and group-navigation cores on their own simulations (for
   recordings of those estimators before their services and player plugins exist);
 * :func:`write_recording` — everything merged by stamp into MCAP with the recorder's writer, log time =
-  ``t0_ns`` + stamp.
+  ``t0_ns`` + stamp;
+* :func:`with_attachments` — a copy of a recording with metadata records and attachments added, as the recorder
+  writes them to make a file self-describing (the scenario YAML as ``scenario/<file>.yaml``, the run's
+  ``fixstream.run`` metadata: docs/recorder.md).
 """
 
 from __future__ import annotations
@@ -222,13 +225,60 @@ def write_recording(
     return list(writer.files_written)
 
 
+def with_attachments(
+    src: str | Path,
+    dst: str | Path,
+    attachments: Sequence[tuple[str, str, bytes]] = (),
+    metadata: dict[str, dict[str, str]] | None = None,
+) -> Path:
+    """A copy of the MCAP ``src`` at ``dst`` (every schema, channel and message as it was) with ``metadata``
+    (record name -> key/value) and ``attachments`` ((name, media type, data)) added, chunked and finalised."""
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+
+    out = Path(dst)
+    with Path(src).open("rb") as f, out.open("wb") as g:
+        reader = make_reader(f)
+        writer = Writer(g, compression=CompressionType.ZSTD)
+        writer.start(profile="", library="fixstream offline")
+        for record, values in (metadata or {}).items():
+            writer.add_metadata(record, dict(values))
+        for name, media_type, blob in attachments:
+            writer.add_attachment(create_time=0, log_time=0, name=name, data=blob, media_type=media_type)
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, channel, message in reader.iter_messages(log_time_order=False):
+            if channel.id not in channels:
+                sid = 0
+                if schema is not None:
+                    if schema.id not in schemas:
+                        schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+                    sid = schemas[schema.id]
+                channels[channel.id] = writer.register_channel(
+                    channel.topic, channel.message_encoding, sid, dict(channel.metadata)
+                )
+            writer.add_message(
+                channels[channel.id], message.log_time, message.data, message.publish_time, message.sequence
+            )
+        writer.finish()
+    return out
+
+
+def scenario_attachment(path: str | Path) -> tuple[str, str, bytes]:
+    """The scenario file as the recorder attaches it: ``scenario/<file name>``, ``application/yaml``."""
+    p = Path(path)
+    return (f"scenario/{p.name}", "application/yaml", p.read_bytes())
+
+
 __all__ = [
     "T0_NS",
     "lbl_items",
     "marker",
     "rd_items",
+    "scenario_attachment",
     "scenario_feed",
     "service_outputs",
+    "with_attachments",
     "write_recording",
 ]
 

@@ -1,8 +1,9 @@
 """Read a recording for the report: every fixstream message of one or more MCAP files, decoded, with progress.
 
-A recording is a file, several files (a rotated recording) or a directory of them (:func:`recording_files`
-order). Records on channels that are not fixstream's (the Foxglove scene and map channels the recorder adds,
-``foxglove.*`` schemas) are counted and skipped. Anything else that is wrong raises :class:`ReportError`
+A report is of one recording: a file, or the rotated files of one recorder run; a directory means its newest
+recording (:func:`select_recording`; ``--all`` merges several, and says so on the page). Records on channels
+that are not fixstream's (the Foxglove scene and map channels the recorder adds, ``foxglove.*`` schemas) are
+counted and skipped. Anything else that is wrong raises :class:`ReportError`
 naming the file (and topic) and the problem:
 
 * a missing, empty, non-MCAP or corrupt file (:class:`shared.mcap_io.McapReadError`);
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import gc
 import os
+import re
 import sys
 from collections import Counter
 from collections.abc import Sequence
@@ -58,23 +60,82 @@ class Recording:
         return [(it.key, it.msg) for it in self.items if isinstance(it.msg, ScenarioMarker)]
 
 
-def input_files(paths: Sequence[str | os.PathLike[str]]) -> list[Path]:
-    """The MCAP files named: files as given, directories expanded to their ``*.mcap`` in recording order."""
-    out: list[Path] = []
+#: the recorder's file names: ``<prefix>_<UTC yyyymmddThhmmssZ>_<nnn>.mcap`` (services/recorder/writer.py)
+_RECORDER_NAME = re.compile(r"^(?P<prefix>.+)_(?P<stamp>\d{8}T\d{6}Z)_(?P<index>\d{3,})\.mcap$")
+
+
+def recordings(files: Sequence[Path]) -> list[list[Path]]:
+    """The files grouped into recordings, in the order given (a directory's: name order = time order).
+
+    One recorder run writes ``<prefix>_<stamp>_<nnn>.mcap`` with ``nnn`` counting up over its rotated files and
+    starting again at 000 in the next run; so a file continues the previous one's recording when it has the same
+    prefix and the next index. Any other file (another prefix, index 000 again, a name not the recorder's) starts a
+    recording of its own."""
+    groups: list[list[Path]] = []
+    last: tuple[str, int] | None = None
+    for f in files:
+        m = _RECORDER_NAME.match(f.name)
+        here = (m["prefix"], int(m["index"])) if m else None
+        if groups and here is not None and last is not None and here == (last[0], last[1] + 1):
+            groups[-1].append(f)
+        else:
+            groups.append([f])
+        last = here
+    return groups
+
+
+def _describe(group: list[Path]) -> str:
+    size = sum(f.stat().st_size for f in group if f.exists())
+    parts = f" (+{len(group) - 1} rotated file(s))" if len(group) > 1 else ""
+    return f"{group[0].name}{parts}, {size / 1e6:.1f} MB"
+
+
+def input_files(paths: Sequence[str | os.PathLike[str]], *, merge: bool = False) -> list[Path]:
+    """The MCAP files of the one recording named (see :func:`select_recording`; notes are dropped)."""
+    return select_recording(paths, merge=merge)[0]
+
+
+def select_recording(paths: Sequence[str | os.PathLike[str]], *, merge: bool = False) -> tuple[list[Path], list[str]]:
+    """(files, notes): the files of ONE recording unless ``merge`` (``--all``).
+
+    * a file: that file; several files: they must be the rotated parts of one recording (:func:`recordings`),
+      else :class:`ReportError` listing the recordings they are;
+    * a directory: its newest recording (the last in name order, the recorder's names being time-stamped), with
+      a note naming the others; with ``merge``, every file of the directory.
+    """
+    given: list[Path] = []
+    notes: list[str] = []
     for raw in paths:
         p = Path(raw)
         if p.is_dir():
             found = recording_files(p)
             if not found:
                 raise ReportError(f"{p}: no .mcap file in this directory")
-            out += found
+            groups = recordings(found)
+            if len(groups) > 1 and not merge:
+                older = "; ".join(_describe(g) for g in reversed(groups[:-1]))
+                notes.append(
+                    f"{p} holds {len(groups)} recordings: reported the newest, {_describe(groups[-1])}; "
+                    f"not reported: {older} (name a file, or --all to merge them)"
+                )
+                found = groups[-1]
+            given += found
         elif not p.exists():
             raise ReportError(f"{p}: no such file or directory")
         else:
-            out.append(p)
-    if not out:
+            given.append(p)
+    if not given:
         raise ReportError("no recording given")
-    return out
+    groups = recordings(given)
+    if len(groups) > 1 and not merge:
+        listed = "; ".join(_describe(g) for g in groups)
+        raise ReportError(
+            f"{len(groups)} recordings given ({listed}): a report is of one recording; "
+            "name one, or --all to merge them into one report"
+        )
+    if merge and len(groups) > 1:
+        notes.append(f"{len(groups)} recordings merged into this report (--all): " + "; ".join(map(_describe, groups)))
+    return given, notes
 
 
 def is_finalised(path: Path) -> bool:
@@ -91,12 +152,16 @@ def is_finalised(path: Path) -> bool:
 
 
 def read_recording(
-    paths: Sequence[str | os.PathLike[str]], *, allow_truncated: bool = False, progress: bool = True
+    paths: Sequence[str | os.PathLike[str]],
+    *,
+    allow_truncated: bool = False,
+    progress: bool = True,
+    merge: bool = False,
 ) -> Recording:
     """Decode every fixstream message of the recording (see the module doc for what raises)."""
     from tqdm import tqdm
 
-    files = input_files(paths)
+    files = input_files(paths, merge=merge)
     rec = Recording(files=files)
     gc_was_enabled = gc.isenabled()
     gc.disable()  # hundreds of thousands of new objects and no cycles: the collector would only rescan them
@@ -171,4 +236,13 @@ def _read_checked(path: Path, rec: Recording, bar: Any, allow_truncated: bool) -
         rec.notes.append(what + ", reported")
 
 
-__all__ = ["Item", "Recording", "ReportError", "input_files", "is_finalised", "read_recording"]
+__all__ = [
+    "Item",
+    "Recording",
+    "ReportError",
+    "input_files",
+    "is_finalised",
+    "read_recording",
+    "recordings",
+    "select_recording",
+]

@@ -21,12 +21,25 @@ from services.attitude.mc import radar_frame_truth
 from services.attitude.metrics import RunRecorder
 from shared.foxglove.frames import estimates_of
 
-from .common import RunData, Section, decimate, error_series, new_figure, r, render, rms, standard_figures
+from .common import (
+    RunData,
+    Section,
+    decimate,
+    error_series,
+    new_figure,
+    r,
+    render,
+    rms,
+    robust_limit,
+    standard_figures,
+)
 
 KIND = "attitude"
 LOS = (("psi_los", "ψᴸ heading"), ("theta_los", "ϑᴸ pitch"), ("gamma_los", "γᴸ roll"))
 #: the paper's "after ~40 contacts"
 FROM_SCAN = 40
+#: targets (rows) of the per-target figures, at most
+MAX_TARGET_ROWS = 6
 
 
 def build(data: RunData, metrics: dict[str, dict[str, Any]]) -> list[Section]:
@@ -103,47 +116,64 @@ def _record(data: RunData, tid: str, msgs: list[AttitudeEstimate], site_pos: lis
 
 
 def _los_errors(records: dict[str, dict[str, Any]]) -> Any:
-    fig, axs = new_figure(rows=3, height=2.2)
-    for row, (name, label) in enumerate(LOS):
-        ax = axs[row][0]
-        for tid, rec in records.items():
-            t = np.array(rec["stamp_ns"], dtype=np.float64) / 1e9
+    """One row per target (its own ±3σ band), one column per LOS angle."""
+    shown = list(records.items())[:MAX_TARGET_ROWS]
+    fig, axs = new_figure(rows=len(shown), cols=3, height=1.9)
+    palette = [f"C{i}" for i in range(10)]
+    clipped = False
+    for row, (tid, rec) in enumerate(shown):
+        t = np.array(rec["stamp_ns"], dtype=np.float64) / 1e9
+        for col, (name, label) in enumerate(LOS):
+            ax = axs[row][col]
             e = np.array([np.nan if v is None else v for v in rec["err"][name]], dtype=np.float64)
             s = np.array([np.nan if v is None else v for v in rec["sigma"][name]], dtype=np.float64)
             idx = decimate(t.size)
-            (line,) = ax.plot(t[idx], e[idx], lw=0.9, label=tid)
-            ax.fill_between(t[idx], -3 * s[idx], 3 * s[idx], color=line.get_color(), alpha=0.12)
-        ax.axhline(0.0, color="k", lw=0.5)
-        ax.set_ylim(-60, 60)
-        ax.set_ylabel(f"{label} error, deg")
-        ax.set_xlabel("t, s")
-        ax.legend(loc="upper right", ncol=4)
-    axs[0][0].set_title("line-of-sight angle errors (shaded: ±3σ reported by the filter; axis clipped at ±60°)")
-    return render(fig, "LOS angle errors against time", "the paper's metric (§3.3): wrapped estimate − truth per scan")
+            color = palette[row % len(palette)]
+            ax.plot(t[idx], e[idx], lw=1.0, color=color)
+            ax.fill_between(t[idx], -3 * s[idx], 3 * s[idx], color=color, alpha=0.18, lw=0)
+            ax.axhline(0.0, color="k", lw=0.6)
+            lim = min(robust_limit([e], [s]) or 60.0, 60.0)
+            ax.set_ylim(-lim, lim)
+            clipped |= bool(np.nanmax(np.abs(np.concatenate([e, 3 * s])), initial=0.0) > lim)
+            ax.set_title(f"{tid}: {label} error")
+            ax.set_ylabel("error, deg")
+            ax.set_xlabel("t, s")
+    caption = "the paper's metric (§3.3): wrapped estimate − truth per scan; shaded: ±3σ reported by the filter"
+    if clipped:
+        caption += "; y axes clipped (at most ±60°)"
+    if len(records) > len(shown):
+        caption += f"; the first {len(shown)} of {len(records)} targets"
+    return render(fig, "LOS angle errors against time, per target", caption, hspace_in=0.9)
 
 
 def _angles(data: RunData, by_target: dict[str, list[AttitudeEstimate]]) -> Any:
-    fig, axs = new_figure(rows=3, height=2.2)
-    colors = [f"C{i}" for i in range(10)]
-    for row, (field, idx_true, label) in enumerate(
-        (("psi_deg", 0, "heading ψ"), ("theta_deg", 1, "pitch ϑ"), ("gamma_deg", 2, "roll γ"))
-    ):
-        ax = axs[row][0]
-        for i, (tid, msgs) in enumerate(by_target.items()):
-            c = colors[i % len(colors)]
-            t = np.array([m.header.stamp_ns / 1e9 for m in msgs])
+    """One row per target, one column per earth-frame angle: estimates (dots) and truth (line)."""
+    shown = list(by_target.items())[:MAX_TARGET_ROWS]
+    fig, axs = new_figure(rows=len(shown), cols=3, height=1.9)
+    for row, (tid, msgs) in enumerate(shown):
+        c = f"C{row % 10}"
+        t = np.array([m.header.stamp_ns / 1e9 for m in msgs])
+        ts = data.truth.get(tid)
+        for col, (field, idx_true, label) in enumerate(
+            (("psi_deg", 0, "heading ψ"), ("theta_deg", 1, "pitch ϑ"), ("gamma_deg", 2, "roll γ"))
+        ):
+            ax = axs[row][col]
             v = np.array([np.nan if getattr(m, field) is None else getattr(m, field) for m in msgs], dtype=np.float64)
             k = decimate(t.size)
-            ax.plot(t[k], v[k], ".", ms=3, color=c, label=f"{tid}")
-            ts = data.truth.get(tid)
+            ax.plot(t[k], v[k], ".", ms=4, color=c)
             if ts is not None and ts.attitude_rad is not None:
                 deg = np.degrees(ts.attitude_rad[:, idx_true])
-                if idx_true == 0:
-                    deg = np.mod(deg, 360.0)
                 j = decimate(ts.t_s.size)
-                ax.plot(ts.t_s[j], deg[j], "-", lw=0.8, color=c, alpha=0.7)
-        ax.set_ylabel(f"{label}, deg")
-        ax.set_xlabel("t, s")
-        ax.legend(loc="upper right", ncol=4)
-    axs[0][0].set_title("earth-frame angles: estimates (dots) and truth (lines)")
-    return render(fig, "Attitude angles against truth", "")
+                tt, dd = ts.t_s[j], deg[j]
+                if idx_true == 0:  # heading in [0, 360): no vertical line where it wraps
+                    dd = np.mod(dd, 360.0)
+                    wraps = np.flatnonzero(np.abs(np.diff(dd)) > 180.0) + 1
+                    tt, dd = np.insert(tt, wraps, np.nan), np.insert(dd, wraps, np.nan)
+                ax.plot(tt, dd, "-", lw=1.0, color="0.25")
+            ax.set_title(f"{tid}: {label}")
+            ax.set_ylabel("deg")
+            ax.set_xlabel("t, s")
+    caption = "earth-frame angles: estimates (dots), truth (grey line)"
+    if len(by_target) > len(shown):
+        caption += f"; the first {len(shown)} of {len(by_target)} targets"
+    return render(fig, "Attitude angles against truth, per target", caption, hspace_in=0.9)

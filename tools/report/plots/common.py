@@ -39,17 +39,25 @@ from ..data import RunData, TruthSeries
 
 MAX_POINTS = 2000
 MAX_ELLIPSES = 40
+#: platforms (rows) of an error-against-time figure, at most
+MAX_ERROR_PANELS = 6
 #: probability of the NEES band drawn and scored
 NEES_BAND_P = 0.95
-DPI = 80
+#: every figure is this wide (inches) and drawn at this resolution: 1560 px, shown at the page's width (about
+#: 1200 px), so it stays sharp when the browser zooms, and a click shows it at full size
+FIG_WIDTH_IN = 12.0
+DPI = 130
+#: colours of the embedded PNGs (:func:`png_bytes`)
+PALETTE_COLOURS = 128
 
 plt.rcParams.update(
     {
-        "font.size": 8,
-        "axes.titlesize": 9,
+        "font.size": 10.5,
+        "axes.titlesize": 11.5,
+        "axes.labelsize": 10.5,
         "axes.grid": True,
         "grid.alpha": 0.3,
-        "legend.fontsize": 7,
+        "legend.fontsize": 9.5,
         "figure.autolayout": False,
     }
 )
@@ -79,22 +87,63 @@ class Section:
     tables: list[tuple[str, list[str], list[list[Any]]]] = field(default_factory=list)
 
 
-def new_figure(rows: int = 1, cols: int = 1, height: float = 3.0, width: float = 9.0) -> tuple[MplFigure, Any]:
-    fig, axes = plt.subplots(rows, cols, figsize=(width, height * rows), squeeze=False)
+def new_figure(rows: int = 1, cols: int = 1, height: float = 3.0, width: float = FIG_WIDTH_IN) -> tuple[MplFigure, Any]:
+    """A figure of ``rows`` x ``cols`` axes; ``height`` per row in inches of a 9-inch-wide figure (scaled with the
+    width, so the story figures keep their proportions)."""
+    fig, axes = plt.subplots(rows, cols, figsize=(width, height * rows * width / 9.0), squeeze=False)
     return fig, axes
 
 
-def render(fig: MplFigure, title: str, caption: str = "", left_in: float = 0.75) -> Figure:
-    """The figure as an embedded PNG (the figure is closed). Fixed margins (``left_in`` inches for the y labels)
-    rather than ``tight_layout``, which costs a full extra draw."""
+def apply_margins(fig: MplFigure, left_in: float = 1.0, bottom_in: float = 0.65, hspace_in: float = 0.8) -> None:
+    """Fixed margins in inches: ``left_in`` for the y labels, ``bottom_in`` for the x label (and a legend below),
+    ``hspace_in`` between rows for their titles and x labels."""
     w, h = fig.get_size_inches()
+    specs = [spec for ax in fig.axes if (spec := ax.get_subplotspec()) is not None]
+    rows = max((spec.get_gridspec().nrows for spec in specs), default=1)
+    top, bottom = 1.0 - 0.45 / h, bottom_in / h
+    row_h = (top - bottom) * h / rows
     fig.subplots_adjust(
-        left=left_in / w, right=1.0 - 0.2 / w, top=1.0 - 0.35 / h, bottom=0.5 / h, hspace=0.75, wspace=0.25
+        left=left_in / w,
+        right=1.0 - 0.25 / w,
+        top=top,
+        bottom=bottom,
+        hspace=hspace_in / max(row_h - hspace_in, 0.5),
+        wspace=0.28,
     )
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI)
+
+
+def render(
+    fig: MplFigure,
+    title: str,
+    caption: str = "",
+    left_in: float = 1.0,
+    bottom_in: float = 0.65,
+    hspace_in: float = 0.8,
+) -> Figure:
+    """The figure as an embedded PNG (the figure is closed), with :func:`apply_margins` rather than
+    ``tight_layout``, which costs a full extra draw."""
+    apply_margins(fig, left_in, bottom_in, hspace_in)
+    return Figure(title, base64.b64encode(png_bytes(fig)).decode("ascii"), caption)
+
+
+def png_bytes(fig: MplFigure) -> bytes:
+    """The figure drawn at :data:`DPI` as a PNG of at most :data:`PALETTE_COLOURS` colours (the figure is closed).
+
+    Line plots use few colours; a palette PNG (Pillow's fast octree quantiser, no dithering) is a third of the
+    size of matplotlib's true-colour PNG, with no visible difference, so the page stays small at this resolution.
+    """
+    from PIL import Image
+
+    fig.set_dpi(DPI)
+    canvas = fig.canvas
+    canvas.draw()
+    width, height = canvas.get_width_height(physical=True)
+    rgba = Image.frombuffer("RGBA", (width, height), canvas.buffer_rgba(), "raw", "RGBA", 0, 1)  # type: ignore[attr-defined]
     plt.close(fig)
-    return Figure(title, base64.b64encode(buf.getvalue()).decode("ascii"), caption)
+    pal = rgba.convert("RGB").quantize(PALETTE_COLOURS, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE)
+    buf = io.BytesIO()
+    pal.save(buf, format="PNG", compress_level=6)
+    return buf.getvalue()
 
 
 def decimate(n: int, max_points: int = MAX_POINTS) -> np.ndarray:
@@ -227,69 +276,75 @@ def cov_ellipse(center: Sequence[float], cov2: F64, nsig: float = 3.0, **kw: Any
     )
 
 
-def plan_view(
-    ax: Axes,
-    truths: dict[str, F64],
-    estimates: dict[str, tuple[F64, F64 | None]],
-    *,
-    points: dict[str, F64] | None = None,
-    title: str = "plan view (east, north)",
-    equal: bool = True,
-) -> None:
-    """Truth tracks (lines), estimates (dots) with every k-th 3σ ellipse, optional fixed points (markers)."""
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for i, (name, xy) in enumerate(truths.items()):
-        idx = decimate(len(xy))
-        ax.plot(xy[idx, 0], xy[idx, 1], "-", color=colors[i % len(colors)], lw=1.2, label=f"{name} truth")
-    for i, (name, (xy, covs)) in enumerate(estimates.items()):
-        if len(xy) == 0:
-            continue
-        c = colors[(i + len(truths)) % len(colors)] if name not in truths else colors[list(truths).index(name)]
-        idx = decimate(len(xy))
-        ax.plot(xy[idx, 0], xy[idx, 1], ".", ms=2.5, color=c, alpha=0.8, label=f"{name} estimate")
-        if covs is not None and len(covs):
-            step = max(1, len(xy) // max(1, MAX_ELLIPSES // max(1, len(estimates))))
-            for k in range(0, len(xy), step):
-                ax.add_patch(cov_ellipse(xy[k], covs[k][:2, :2], color=c, lw=0.6, alpha=0.6))
-    for name, xy in (points or {}).items():
-        ax.plot(xy[:, 0], xy[:, 1], "k^", ms=6)
-        ax.annotate(name, (float(xy[0, 0]), float(xy[0, 1])), fontsize=7, xytext=(3, 3), textcoords="offset points")
-    ax.set_xlabel("east, m")
-    ax.set_ylabel("north, m")
-    ax.set_title(title + " — ellipses: 3σ")
-    if equal:
-        ax.set_aspect("equal", adjustable="datalim")
-    if truths or estimates:
-        ax.legend(loc="best", ncol=2)
+def robust_limit(values: Iterable[F64], sigmas: Iterable[F64]) -> float | None:
+    """A symmetric y limit that shows the errors and the usual ±3σ band: 1.25 × the larger of the 99th
+    percentile of |error| and the median 3σ — so one early transient (a km-wide σ at initiation) does not flatten
+    the rest. None when there is nothing finite."""
+    errs = np.concatenate([np.abs(np.asarray(v, dtype=np.float64)).ravel() for v in values] or [np.zeros(0)])
+    sig = np.concatenate([np.asarray(v, dtype=np.float64).ravel() for v in sigmas] or [np.zeros(0)])
+    errs, sig = errs[np.isfinite(errs)], sig[np.isfinite(sig)]
+    if errs.size == 0:
+        return None
+    lim = max(float(np.percentile(errs, 99)), 3.0 * float(np.median(sig)) if sig.size else 0.0)
+    return 1.25 * lim if lim > 0 else None
 
 
-def error_plot(ax: Axes, t: F64, err: F64, sigma: F64 | None, label: str, unit: str = "m") -> None:
-    """An error component against time with its ±3σ envelope."""
+def error_plot(ax: Axes, t: F64, err: F64, sigma: F64 | None, color: str, unit: str = "m") -> bool:
+    """An error component against time with its ±3σ envelope; True if the axis clips some of it."""
     idx = decimate(t.size)
-    (line,) = ax.plot(t[idx], err[idx], lw=0.9, label=f"{label} error")
+    ax.plot(t[idx], err[idx], lw=1.0, color=color, label="estimate − truth")
     if sigma is not None:
         s = 3.0 * sigma[idx]
-        ax.fill_between(t[idx], -s, s, color=line.get_color(), alpha=0.15, label=f"{label} ±3σ")
-    ax.axhline(0.0, color="k", lw=0.5)
+        ax.fill_between(t[idx], -s, s, color=color, alpha=0.18, lw=0, label="±3σ of the filter")
+    ax.axhline(0.0, color="k", lw=0.6)
     ax.set_xlabel("t, s")
-    ax.set_ylabel(f"error, {unit}")
-    ax.legend(loc="upper right", ncol=2)
+    lim = robust_limit([err], [] if sigma is None else [sigma])
+    if lim is None:
+        return False
+    ax.set_ylim(-lim, lim)
+    worst = max(float(np.nanmax(np.abs(err))) if np.isfinite(err).any() else 0.0, 0.0)
+    if sigma is not None and np.isfinite(sigma).any():
+        worst = max(worst, 3.0 * float(np.nanmax(sigma)))
+    return worst > lim
+
+
+def error_figure(series: list[ErrorSeries], axes_names: tuple[str, str], what: str = "") -> tuple[Figure, bool]:
+    """One row per platform (at most :data:`MAX_ERROR_PANELS`), one column per horizontal axis, each with its
+    own ±3σ band: bands of several platforms never overlap. (figure, whether platforms were left out)"""
+    shown = series[:MAX_ERROR_PANELS]
+    fig, axs = new_figure(rows=len(shown), cols=2, height=2.0)
+    palette = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    clipped = False
+    for r, s in enumerate(shown):
+        for c, name in enumerate(axes_names):
+            ax = axs[r][c]
+            sig = None if s.cov is None else np.sqrt(np.clip(s.cov[:, c, c], 0.0, None))
+            clipped |= error_plot(ax, s.t_s, s.err[:, c], sig, palette[r % len(palette)])
+            ax.set_title(f"{s.name}: {name} error")
+            ax.set_ylabel(f"{name.split(' ')[0]} error, m")
+    caption = "line: estimate − truth per axis and platform; shaded: ±3σ of the filter's covariance"
+    if clipped:
+        caption += "; y axes clipped at 1.25 × the larger of the 99th percentile of |error| and the median 3σ"
+    return render(fig, f"Error against time{what}", caption, hspace_in=0.9), len(series) > len(shown)
 
 
 def nees_plot(ax: Axes, series: dict[str, tuple[F64, F64]], dof: int) -> None:
-    """NEES samples per series against the two-sided 95 % χ²(dof) interval of one sample."""
+    """NEES samples per series against the two-sided 95 % χ²(dof) interval of one sample; the legend gives each
+    series' share inside it."""
     lo, hi = nees_band(dof)
     for name, (t, v) in series.items():
         idx = decimate(t.size)
-        ax.plot(t[idx], v[idx], ".", ms=2.5, label=name)
-    ax.axhspan(lo, hi, color="g", alpha=0.12, label=f"χ²({dof}) 95 % [{lo:.2g}, {hi:.2g}]")
-    ax.axhline(dof, color="g", lw=0.7)
+        share = in_band_fraction(v, dof)
+        label = name if share is None else f"{name} ({share:.0%} inside)"
+        ax.plot(t[idx], v[idx], ".", ms=4, label=label)
+    ax.axhspan(lo, hi, color="g", alpha=0.12, label=f"95 % interval of χ²({dof}): [{lo:.2g}, {hi:.2g}]")
+    ax.axhline(dof, color="g", lw=0.8)
     ax.set_yscale("log")
     ax.yaxis.set_major_formatter(LogFormatter(labelOnlyBase=True))  # plain text, no mathtext: faster
     ax.yaxis.set_minor_formatter(NullFormatter())
     ax.set_xlabel("t, s")
-    ax.set_ylabel("NEES")
-    ax.legend(loc="upper right", ncol=3)
+    ax.set_ylabel("NEES (dimensionless)")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.24), ncol=min(4, len(series) + 1), frameon=False)
 
 
 def standard_figures(
@@ -300,31 +355,28 @@ def standard_figures(
     points: dict[str, F64] | None = None,
     axes_names: tuple[str, str] = ("east", "north"),
     what: str = "",
+    plan_focus: dict[str, F64] | None = None,
 ) -> tuple[list[Figure], dict[str, Any]]:
-    """Plan view, horizontal error components with ±3σ, NEES with its χ² band; plus their headline numbers."""
-    figs: list[Figure] = []
-    fig, ax = new_figure(height=5.0, width=7.5)
-    plan_view(ax[0][0], plan_truths, plan_estimates, points=points)
-    figs.append(render(fig, f"Plan view{what}", "truth (lines) and estimates (dots, 3σ ellipses)", left_in=0.9))
+    """Plan views (the scene and each track zoomed — to ``plan_focus`` of a track if given), horizontal error
+    components with ±3σ per platform, NEES with its χ² band; plus their headline numbers."""
+    from .plan import plan_figure
+
+    figs: list[Figure] = [plan_figure(plan_truths, plan_estimates, points, title=f"Plan view{what}", focus=plan_focus)]
     head: dict[str, Any] = {}
     usable = [s for s in series if s.t_s.size]
     if not usable:
         return figs, head
-    fig, axs = new_figure(rows=len(axes_names), height=2.4)
-    for c, name in enumerate(axes_names):
-        ax = axs[c][0]
-        for s in usable:
-            sig = None if s.cov is None else np.sqrt(np.clip(s.cov[:, c, c], 0.0, None))
-            error_plot(ax, s.t_s, s.err[:, c], sig, s.name if len(usable) > 1 else name)
-        ax.set_title(f"{name} error against truth" + (" (per platform)" if len(usable) > 1 else ""))
-    figs.append(render(fig, f"Error against time{what}", "estimate − truth per axis, shaded: ±3σ of the filter"))
+    figs.append(error_figure(usable, axes_names, what)[0])
     with_cov = [s for s in usable if s.cov is not None]
     if with_cov:
         dof = with_cov[0].dims
-        fig, ax = new_figure(height=3.0)
-        nees_plot(ax[0][0], {s.name: (s.t_s, s.nees()) for s in with_cov if s.dims == dof}, dof)
-        ax[0][0].set_title(f"NEES ({dof}-D position)")
-        figs.append(render(fig, f"NEES{what}", "per sample; band: two-sided 95 % interval of one χ² sample"))
+        mfig, ax = new_figure(height=3.2)
+        nees_series = {s.name: (s.t_s, s.nees()) for s in with_cov if s.dims == dof}
+        nees_plot(ax[0][0], nees_series, dof)
+        ax[0][0].set_title(f"NEES of the {dof}-D position per estimate (log scale)")
+        caption = "eᵀP⁻¹e per estimate; band: the two-sided 95 % interval of one χ² sample"
+        legend_in = 0.35 * math.ceil((len(nees_series) + 1) / 4)
+        figs.append(render(mfig, f"NEES{what}", caption, bottom_in=0.95 + legend_in))
         all_nees = np.concatenate([s.nees() for s in with_cov if s.dims == dof])
         head["nees_dof"] = dof
         head["nees_mean"] = r(float(np.nanmean(all_nees))) if np.isfinite(all_nees).any() else None
@@ -336,14 +388,19 @@ def standard_figures(
 
 
 __all__ = [
+    "DPI",
+    "FIG_WIDTH_IN",
     "MAX_ELLIPSES",
+    "MAX_ERROR_PANELS",
     "MAX_POINTS",
     "ErrorSeries",
     "Figure",
     "RunData",
     "Section",
+    "apply_margins",
     "cov_ellipse",
     "decimate",
+    "error_figure",
     "error_plot",
     "error_series",
     "in_band_fraction",
@@ -351,9 +408,9 @@ __all__ = [
     "nees_band",
     "nees_plot",
     "new_figure",
-    "plan_view",
     "r",
     "render",
     "rms",
+    "robust_limit",
     "standard_figures",
 ]

@@ -69,10 +69,15 @@ def _section(data: RunData, source: str, entry: dict[str, Any] | None) -> Sectio
     story, facts = _story(fixes, truth)
     sec.figures.append(story)
     resolved_after = facts.get("resolution_after_launch_s")
-    after = (
-        series.horizontal_error()[series.t_s >= facts["resolution_s"]]
-        if series is not None and facts.get("resolution_s") is not None
-        else np.zeros(0)
+    resolved = (
+        series.t_s >= facts["resolution_s"] if series is not None and facts.get("resolution_s") is not None else None
+    )
+    after = series.horizontal_error()[resolved] if series is not None and resolved is not None else np.zeros(0)
+    # the paper's Fig. 5 б, в: RMS per axis (σx east, σy north) of the resolved solutions
+    per_axis = (
+        [r(float(np.sqrt(np.mean(series.err[resolved, c] ** 2)))) for c in (0, 1)]
+        if series is not None and resolved is not None and resolved.any()
+        else None
     )
     sec.headline = {
         "epochs": len(fixes),
@@ -81,11 +86,10 @@ def _section(data: RunData, source: str, entry: dict[str, Any] | None) -> Sectio
         "decision": facts.get("decision"),
         "decision_correct": facts.get("correct"),
         "horizontal_rms_after_resolution_m": r(float(np.sqrt(np.mean(after**2)))) if after.size else None,
+        "rms_after_resolution_per_axis_m": per_axis,
         **{k: v for k, v in head.items() if k.startswith("nees")},
         "events": {k: sum(1 for e in events if e.kind == k) for k in sorted({e.kind for e in events})},
     }
-    if entry and entry.get("metrics"):
-        sec.notes.append("the mc plugin's metrics of this instance are in metrics.json")
     if truth is None:
         sec.notes.append(f"no Truth of {platform} in the recording: errors, NEES and the true hypothesis unknown")
     return sec

@@ -65,6 +65,7 @@ def _section(data: RunData, source: str, entry: dict[str, Any] | None) -> Sectio
     tpos = {name: data.truth[name].at(scan_t) for name in known}
     tvel = {name: data.truth[name].vel_at_many(scan_t) for name in known}
     own_ospa = not (m and m.get("ospa_m"))
+    matched: set[tuple[int, int]] = set()  # (scan index, track id) of the confirmed tracks matched to a target
     for k, rep in enumerate(scans):
         t = float(scan_t[k])
         conf = [tr for tr in rep.tracks if tr.status == "CONFIRMED"]
@@ -76,6 +77,7 @@ def _section(data: RunData, source: str, entry: dict[str, Any] | None) -> Sectio
         for i, j in match_tracks(tp, gp, match_d):
             tr = conf[i]
             name = alive[j]
+            matched.add((k, tr.track_id))
             track_target.setdefault(tr.track_id, name)
             v = tvel[name][k]
             truth_vel = v if np.all(np.isfinite(v)) else None
@@ -108,23 +110,34 @@ def _section(data: RunData, source: str, entry: dict[str, Any] | None) -> Sectio
             if row[4] is not None:
                 vel_err.append((row[0], float(np.linalg.norm(row[1][3:] - row[4]))))
     truths = {n: data.truth[n].pos[:, :2] for n in targets if n in data.truth}
-    conf_pts = [
-        (np.asarray(tr.state_enu[:2]), np.asarray(tr.cov_enu)[:3, :3])
-        for rep in scans
-        for tr in rep.tracks
-        if tr.status == "CONFIRMED"
-    ]
+    # confirmed tracks: per target they followed (its colour, its panel), and those matched to none
     plan: dict[str, tuple[Any, Any]] = {
-        "confirmed tracks": (
-            np.array([p for p, _ in conf_pts]).reshape(-1, 2),
-            np.array([c for _, c in conf_pts]).reshape(-1, 3, 3),
-        )
+        name: (np.array([row[1][:2] for row in rows]), np.array([row[3][:3, :3] for row in rows]))
+        for name, rows in per_target.items()
+        if rows
     }
+    unmatched = [
+        (np.asarray(tr.state_enu[:2]), np.asarray(tr.cov_enu)[:3, :3])
+        for k, rep in enumerate(scans)
+        for tr in rep.tracks
+        if tr.status == "CONFIRMED" and (k, tr.track_id) not in matched
+    ]
+    if unmatched:
+        plan["confirmed, matched to no target"] = (
+            np.array([p for p, _ in unmatched]).reshape(-1, 2),
+            np.array([c for _, c in unmatched]).reshape(-1, 3, 3),
+        )
     points = {"receiver": np.zeros((1, 2))}
     if par.get("tx") is not None:
         points["illuminator"] = np.asarray([par["tx"][:2]], dtype=np.float64)
+    # each target's panel zooms to where it was tracked (a target flies on for hundreds of km after)
+    focus = {
+        name: np.array([xy for row in rows for xy in (row[1][:2], row[2][:2])], dtype=np.float64)
+        for name, rows in per_target.items()
+        if rows
+    }
     figs, head = standard_figures(
-        series[:MAX_ERROR_PANELS], plan_truths=truths, plan_estimates=plan, points=points, what=""
+        series[:MAX_ERROR_PANELS], plan_truths=truths, plan_estimates=plan, points=points, plan_focus=focus
     )
     sec.figures += figs
     if len(series) > MAX_ERROR_PANELS:
@@ -186,10 +199,8 @@ def _story(
         ax.plot([d["start"], d.get("confirmed", d["end"])], [row, row], color="0.7", lw=3)
         if "confirmed" in d:
             ax.plot([d["confirmed"], d["end"]], [row, row], color="tab:blue", lw=3)
-            ax.annotate(
-                track_target.get(tid, "false?"), (d["end"], row), fontsize=6, xytext=(2, -2), textcoords="offset points"
-            )
-    ax.set_yticks(range(len(shown)), [str(t) for t in shown], fontsize=6)
+            ax.annotate(track_target.get(tid, "false?"), (d["end"], row), xytext=(3, -3), textcoords="offset points")
+    ax.set_yticks(range(len(shown)), [str(t) for t in shown], fontsize=9 if len(shown) <= 30 else 6)
     ax.set_ylabel("track id")
     ax.set_xlabel("t, s")
     ax.set_title("track lifetimes (grey: tentative, blue: confirmed; label: target followed)")

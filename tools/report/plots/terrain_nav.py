@@ -111,5 +111,5 @@ def _verdict_figure(verdicts: list[TerrainVerdict]) -> Any:
     ax.set_title("verdict state over time (green: fix issued)")
     ax.set_xlabel("t, s")
     return render(
-        fig, "Terrain verdicts C1–C4 over time", "which reliability condition blocked a fix, and when", left_in=1.35
+        fig, "Terrain verdicts C1–C4 over time", "which reliability condition blocked a fix, and when", left_in=2.0
     )
