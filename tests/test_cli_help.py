@@ -154,17 +154,20 @@ def test_plain_drops_every_literal_backtick_pair_and_keeps_the_content(parts: li
 
 
 # ----- shell completion ------------------------------------------------------------------------------------------
-def _complete(script: str, *words: str) -> list[str]:
-    """What bash offers for the last word of ``fixstream <words>`` with the generated script loaded."""
-    program = (
-        script
-        + "\nCOMP_WORDS=("
-        + " ".join(f"'{w}'" for w in ("fixstream", *words))
-        + ')\nCOMP_CWORD=$(( ${#COMP_WORDS[@]} - 1 ))\n_fixstream\nprintf "%s\\n" "${COMPREPLY[@]}"\n'
-    )
-    done = subprocess.run(["bash", "--norc", "--noprofile"], input=program, capture_output=True, text=True)
+def _complete(script: str, *queries: tuple[str, ...]) -> list[list[str]]:
+    """What bash offers for the last word of each ``fixstream <words>`` with the generated script loaded (one bash
+    run for all the queries)."""
+    program = [script]
+    for words in queries:
+        quoted = " ".join(f"'{w}'" for w in ("fixstream", *words))
+        program += [
+            f"COMP_WORDS=({quoted}); COMP_CWORD=$(( ${{#COMP_WORDS[@]}} - 1 )); COMPREPLY=()",
+            '_fixstream; printf "%s\\n" "${COMPREPLY[@]}"; echo "--end--"',
+        ]
+    done = subprocess.run(["bash", "--norc", "--noprofile"], input="\n".join(program), capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
-    return [w for w in done.stdout.splitlines() if w]
+    answers = done.stdout.split("--end--\n")[: len(queries)]
+    return [[w for w in a.splitlines() if w] for a in answers]
 
 
 @pytest.mark.skipif(shutil.which("bash") is None, reason="no bash")
@@ -174,15 +177,24 @@ def test_bash_completion_offers_commands_options_and_choices() -> None:
     )
     script = done.stdout
     assert script == bash_script(build_parser())
-    assert _complete(script, "") == list(COMMANDS)
-    assert _complete(script, "to") == ["topics"]
-    assert _complete(script, "--log-level", "W") == ["WARNING"]
-    assert _complete(script, "--log-level", "INFO", "h") == ["hz"]  # an option's value is not the command
-    assert "--rate" in _complete(script, "play", "x.mcap", "--ra")
-    assert set(_complete(script, "play", "--")) >= {"--keys", "--exclude", "--all", "--wait-timeout", "--progress"}
-    assert _complete(script, "hz", "k", "--clock", "") == ["receive", "stamp"]
-    assert _complete(script, "scenarios", "v") == ["validate"]
-    assert _complete(script, "record", "--compression", "l") == ["lz4"]
-    assert _complete(script, "echo", "--count", "") == []  # a number: nothing to offer
-    zsh = subprocess.run(fixstream_cmd("completion", "zsh"), cwd=REPO, capture_output=True, text=True, timeout=60)
-    assert zsh.stdout.startswith("autoload -U +X bashcompinit && bashcompinit\n") and script in zsh.stdout
+    cases: list[tuple[tuple[str, ...], list[str] | set[str]]] = [
+        (("",), list(COMMANDS)),
+        (("to",), ["topics"]),
+        (("--log-level", "W"), ["WARNING"]),
+        (("--log-level", "INFO", "h"), ["hz"]),  # an option's value is not the command
+        (("play", "x.mcap", "--ra"), ["--rate"]),
+        (("hz", "k", "--clock", ""), ["receive", "stamp"]),
+        (("scenarios", "v"), ["validate"]),
+        (("record", "--compression", "l"), ["lz4"]),
+        (("echo", "--count", ""), []),  # a number: nothing to offer
+    ]
+    answers = _complete(script, *(words for words, _ in cases), ("play", "--"))
+    for (words, expected), got in zip(cases, answers[:-1], strict=True):
+        assert got == expected, (words, got)
+    assert set(answers[-1]) >= {"--keys", "--exclude", "--all", "--wait-timeout", "--progress"}
+
+
+def test_zsh_completion_is_the_bash_script_behind_bashcompinit(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["completion", "zsh"]) == 0
+    out = capsys.readouterr().out
+    assert out == "autoload -U +X bashcompinit && bashcompinit\n" + bash_script(build_parser())

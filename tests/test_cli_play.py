@@ -12,7 +12,7 @@ answers (fixes, diagnostics) and a Foxglove scene channel. Replayed:
   otherwise, and reaches N/N with N the records the selection replays.
 
 ``--wait-timeout`` bounds the wait for services of a scenario file (item 7: the file's ``wait_timeout_s`` no longer
-wins over the command line) and of a recording.
+wins over the command line) and of a recording; a scenario's progress line counts the share of its duration.
 """
 
 from __future__ import annotations
@@ -197,6 +197,9 @@ def test_wait_timeout_on_the_command_line_wins_over_the_scenario_file(router: st
     doc.update(name="waits_briefly", wait_timeout_s=1.0)
     brief = tmp_path / "waits_briefly.yaml"
     brief.write_text(yaml.safe_dump(doc))
+    doc.update(name="short", wait_for=[], duration_s=1.0)
+    short = tmp_path / "short.yaml"
+    short.write_text(yaml.safe_dump(doc))
     mcap = tmp_path / "rec.mcap"
     _write_recording(mcap, rounds=1)
     t0 = time.monotonic()
@@ -204,6 +207,8 @@ def test_wait_timeout_on_the_command_line_wins_over_the_scenario_file(router: st
         "flag": start("play", str(slow), "--wait-timeout", "0.5", "--connect", router),
         "file": start("play", str(brief), "--connect", router),
         "mcap": start("play", str(mcap), "--wait-for", "nobody", "--wait-timeout", "0.5", "--connect", router),
+        # meanwhile: a scenario's progress line, by the share of its duration played
+        "short": start("play", str(short), "--rate", "0", "--progress", "--linger", "0", "--connect", router),
     }
     results = {name: finish(proc) for name, proc in runs.items()}
     elapsed = time.monotonic() - t0
@@ -214,6 +219,10 @@ def test_wait_timeout_on_the_command_line_wins_over_the_scenario_file(router: st
     assert code == 3 and err.strip().endswith("after 1 s"), err  # no flag: the file's value
     code, _, err = results["mcap"]
     assert code == 3 and err.strip().endswith("no live token on fixstream/alive/nobody/* after 0.5 s"), err
+    code, out, err = results["short"]
+    assert code == 0, err
+    n = int(re.search(r"published (\d+) messages", out).group(1))  # type: ignore[union-attr]
+    assert re.search(rf"^play short: {n} messages \(100 %\), 1\.0/1\.0 s of data", err, re.MULTILINE), err
     # key options are for recordings only
     code, _, err = finish(start("play", str(slow), "--all", "--connect", router))
     assert code == 2 and "select keys of a recording" in err
