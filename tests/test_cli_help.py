@@ -164,7 +164,9 @@ def _complete(script: str, *queries: tuple[str, ...]) -> list[list[str]]:
             f"COMP_WORDS=({quoted}); COMP_CWORD=$(( ${{#COMP_WORDS[@]}} - 1 )); COMPREPLY=()",
             '_fixstream; printf "%s\\n" "${COMPREPLY[@]}"; echo "--end--"',
         ]
-    done = subprocess.run(["bash", "--norc", "--noprofile"], input="\n".join(program), capture_output=True, text=True)
+    done = subprocess.run(
+        ["bash", "--norc", "--noprofile"], input="\n".join(program), capture_output=True, text=True, cwd=REPO
+    )
     assert done.returncode == 0, done.stderr
     answers = done.stdout.split("--end--\n")[: len(queries)]
     return [[w for w in a.splitlines() if w] for a in answers]
@@ -187,6 +189,8 @@ def test_bash_completion_offers_commands_options_and_choices() -> None:
         (("scenarios", "v"), ["validate"]),
         (("record", "--compression", "l"), ["lz4"]),
         (("echo", "--count", ""), []),  # a number: nothing to offer
+        (("hz", "fixstream/"), []),  # a key expression is not a file
+        (("play", "scenarios/dem"), ["scenarios/demo.yaml"]),  # a file is
     ]
     answers = _complete(script, *(words for words, _ in cases), ("play", "--"))
     for (words, expected), got in zip(cases, answers[:-1], strict=True):

@@ -20,6 +20,8 @@ from pathlib import Path
 
 #: options and positionals whose values are paths (besides those with ``type=Path``)
 _PATH_DESTS = {"file", "out", "out_dir", "dir", "scenarios_dir", "scenario", "recording", "directory", "env_file"}
+#: positionals that are not paths: key expressions (``fixstream topics`` lists them), service names
+_NOT_PATHS = {"key_expr", "selector", "name", "services", "targets"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -66,6 +68,8 @@ def _positional(parser: argparse.ArgumentParser) -> str:
             kind = _completer(action)
             if kind.startswith("words:"):
                 return f'COMPREPLY=($(compgen -W {shlex.quote(kind[6:])} -- "$cur"))'
+            if action.dest in _NOT_PATHS:
+                return "COMPREPLY=()"
             return 'COMPREPLY=($(compgen -f -- "$cur"))'
     return "COMPREPLY=()"
 
