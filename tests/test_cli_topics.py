@@ -103,15 +103,16 @@ def test_hz_on_the_stamp_clock_gives_each_keys_exact_statistics(router: str) -> 
 @pytest.mark.e2e
 def test_topics_and_hz_on_live_streams(router: str) -> None:
     """Two keys paced at 25 Hz and 10 Hz for 1.6 s against absolute deadlines, with topics and hz (receive clock)
-    listening. Receive-time rates on a shared machine: ±20 % (a late wake-up delays one put, not the mean; a wrong
-    unit or a count/window mix-up is off by far more)."""
+    listening. Receive-time rates on a shared, loaded machine: ±30 % (a late wake-up delays one put, not the mean;
+    only a delay of the first or last message moves the span, by ~0.45 s at most for that bound to hold; a wrong unit
+    is off by 10^3 or more, counting over the whole 3.5 s window instead of the span of the messages by about -54 %)."""
     a, b = "fixstream/test/live/truth", "fixstream/test/live/depth"
     hz = start("hz", a, "--count", "40", "--duration", "20", "--connect", router)
     pub = TestPublisher(router)
     topics = None
     try:
         pub.wait_for_subscriber(a)  # hz listens (on a only)
-        topics = start("topics", "--key", "fixstream/test/live/**", "--duration", "2.5", "--json", "--connect", router)
+        topics = start("topics", "--key", "fixstream/test/live/**", "--duration", "3.5", "--json", "--connect", router)
         pub.wait_for_subscriber(b)  # topics listens
         items = [(i / 25.0, a, truth(i, i * 40 * MS)) for i in range(40)]
         items += [(i / 10.0, b, depth(i, i * 100 * MS)) for i in range(16)]
@@ -126,11 +127,11 @@ def test_topics_and_hz_on_live_streams(router: str) -> None:
     assert rows[a]["type"] == "Truth" and rows[b]["type"] == "Depth"
     assert rows[a]["sources"] == [SOURCE] == rows[b]["sources"]
     assert rows[a]["messages"] == 40 and rows[b]["messages"] == 16
-    assert rows[a]["rate_hz"] == pytest.approx(25.0, rel=0.2)
-    assert rows[b]["rate_hz"] == pytest.approx(10.0, rel=0.2)
+    assert rows[a]["rate_hz"] == pytest.approx(25.0, rel=0.3)
+    assert rows[b]["rate_hz"] == pytest.approx(10.0, rel=0.3)
     code, out, err = finish(hz)
     assert code == 0, err
     (total,) = [line for line in out.splitlines() if line.startswith("total ")]
     rate = float(total.split()[2])
-    assert rate == pytest.approx(25.0, rel=0.2), total
+    assert rate == pytest.approx(25.0, rel=0.3), total
     assert total.startswith(f"total {a}: ") and "window 39" in total
