@@ -34,7 +34,7 @@ from services.player.scenario import Scenario, load_scenario
 from services.player.timeline import build, player_source, stamp
 from services.rd_nav.geometry import crlb, jacobian_d, measurement_cov, motion_comp_cov
 from shared import keys
-from shared.montecarlo import jsonable, load_plugin
+from tools.montecarlo import jsonable, load_plugin
 
 REPO = Path(__file__).resolve().parents[1]
 FILES = [

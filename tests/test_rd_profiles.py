@@ -34,7 +34,7 @@ from services.rd_nav.config import RdNavConfig
 from services.rd_nav.geometry import crlb, jacobian_d, measurement_cov, motion_comp_cov
 from services.rd_nav.inprocess import run
 from services.rd_nav.simulation import REF_BEACONS, VehicleSpec, ref
-from shared.montecarlo import run_montecarlo
+from tools.montecarlo import run_montecarlo
 
 MC = {"propagated_fix_period_s": 0.0, "emit_propagated_after_cycle": False}
 BEFORE = {"process_model": "paper", "outlier_only_if_gated": False}  # the filter before issue 16

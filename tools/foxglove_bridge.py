@@ -2,9 +2,10 @@
 
 Every sample on the key expression is decoded with the wire codec (:func:`shared.codec.decode`) and served
 
-* as itself: a channel named after its key (``fixstream/fix/terrain/tan1``), schema ``fixstream.<Model>``
-  (``jsonschema``, the model's JSON Schema, as the recorder writes it), JSON messages — a second model on the
-  same key gets the topic ``<key> [<Model>]``;
+* as itself: a channel whose topic is its key (``fixstream/fix/terrain/tan1``), schema ``fixstream.<Model>``
+  (``jsonschema``, the model's JSON Schema), JSON messages: the recorder's channels, topic for topic, so a layout
+  made on a recording works live. Every key carries one model; should a publisher put a second model on a key, it
+  gets a second channel of the same topic, as in the recorder's MCAP (one channel per key and model);
 * converted (:class:`shared.foxglove.convert.Converter`): the same ``/foxglove/scene/<key>`` and
   ``/foxglove/location/<key>`` channels, schemas and conversion as the recorder's MCAP files.
 
@@ -38,7 +39,6 @@ class Bridge:
         self.raw = raw
         self.context = context
         self._raw: dict[tuple[str, str], Any] = {}
-        self._raw_topics: set[str] = set()
         self._typed: dict[str, Any] = {}
         self.published: Counter[str] = Counter()
         self.errors: Counter[str] = Counter()
@@ -106,15 +106,13 @@ class Bridge:
 
         from schemas.export import json_schema
 
-        topic = key if key not in self._raw_topics else f"{key} [{model.__name__}]"
-        self._raw_topics.add(topic)
         schema = Schema(
             name=f"fixstream.{model.__name__}",
             encoding="jsonschema",
             data=json.dumps(json_schema(model.__name__), sort_keys=True).encode(),
         )
         channel = Channel(
-            topic,
+            key,
             schema=schema,
             message_encoding="json",
             context=self.context,

@@ -19,6 +19,7 @@ import logging
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import zenoh
@@ -111,8 +112,10 @@ def play_scenario(
     rate: float = 1.0,
     wait: bool = True,
     stop: threading.Event | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> PlayResult:
-    """Publish one run of ``scenario``. ``stop`` ends it early (the end marker is still sent, with the counts)."""
+    """Publish one run of ``scenario``. ``stop`` ends it early (the end marker is still sent, with the counts).
+    ``progress(messages published, data stamp ns)`` is called after every message."""
     stop = stop or threading.Event()
     seed = scenario.seed if seed is None else seed
     scenario_key = keys.scenario(scenario.name)
@@ -140,7 +143,7 @@ def play_scenario(
         last_stamp = 0
         pubs.put(scenario_key, marker(scenario, seed, "start", 0, 0, instance))
         completed = True
-        for ev in events:
+        for n_published, ev in enumerate(events, 1):
             if not pacer.wait(ev.stamp_ns):
                 completed = False
                 log.warning("stopped after %d messages", sum(pubs.counts.values()) - 1)
@@ -148,6 +151,8 @@ def play_scenario(
             pubs.put_stamped(ev.key, ev.msg, source, seq[ev.key])
             seq[ev.key] += 1
             last_stamp = ev.stamp_ns
+            if progress is not None:
+                progress(n_published, last_stamp)
         published = {k: n for k, n in pubs.counts.items() if k != scenario_key}
         pubs.put(scenario_key, marker(scenario, seed, "end", last_stamp, 1, instance, published))
         wall = time.monotonic() - t0

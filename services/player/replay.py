@@ -8,7 +8,12 @@ rebuilt as its pydantic model and re-encoded with :mod:`shared.codec`, so the by
 original publisher sent (headers are kept as recorded: source, seq, stamps). A payload the recorder rejected
 (``fixstream/rejected/<key>``) goes back byte for byte on its original key with its original encoding. A record
 that cannot be rebuilt (unknown fixstream schema, invalid data) is skipped, logged and counted, never silently
-lost; channels that are not fixstream's (the Foxglove scene channels) are skipped quietly and counted.
+lost.
+
+Left out on purpose, counted but not logged: records of keys the selection leaves out (by default everything but
+the player's keys, :mod:`services.player.selection`; a rejected payload is selected by its original key) and
+channels that are not fixstream streams (the recorder's Foxglove scene and map channels). ``progress`` is called
+after every published record.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ import logging
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -33,10 +39,12 @@ log = logging.getLogger("fixstream.replay")
 
 @dataclass
 class ReplayResult:
-    """Published records per topic, skipped records per reason, and whether the file was played to its end."""
+    """Published records per topic, skipped records per reason (records that could not be replayed), records left
+    out on purpose per reason (``not_selected``, ``foreign_channel``), and whether the file was played to its end."""
 
     published: dict[str, int]
     skipped: dict[str, int] = field(default_factory=dict)
+    left_out: dict[str, int] = field(default_factory=dict)
     completed: bool = True
     wall_s: float = 0.0
 
@@ -46,14 +54,25 @@ class ReplayResult:
 
 
 def replay(
-    session: zenoh.Session, path: str | Path, *, rate: float = 1.0, stop: threading.Event | None = None
+    session: zenoh.Session,
+    path: str | Path,
+    *,
+    rate: float = 1.0,
+    stop: threading.Event | None = None,
+    select: Callable[[str], bool] | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> ReplayResult:
-    """Publish every record of ``path`` on its topic. Raises ``mcap_io.McapReadError`` for an unreadable file."""
+    """Publish the records of ``path`` that ``select(topic)`` keeps (None: every fixstream record) on their topics;
+    ``progress(records published, log-time ns since the first)`` after each. Raises ``mcap_io.McapReadError`` for an
+    unreadable file."""
     from shared import mcap_io
 
     pacer = Pacer(rate, stop)
     pubs = Publishers(session)
     skipped: Counter[str] = Counter()
+    left_out: Counter[str] = Counter()
+    first_log_time: int | None = None
+    n_published = 0
     completed = True
     last_log_time: int | None = None
     t0 = time.monotonic()
@@ -66,12 +85,18 @@ def replay(
                     skipped[exc.reason] += 1
                     log.warning("skipping a record on %s: %s", record.topic, exc)
                     continue
+                if select is not None and not select(raw.key):
+                    left_out["not_selected"] += 1
+                    continue
                 if not raw.payload and raw.reason == "payload_too_large":
                     skipped["not_kept"] += 1  # the recorder kept only its size
                     continue
                 key, payload, encoding = raw.key, raw.payload, raw.encoding
             elif not record.schema_name.startswith(mcap_io.SCHEMA_PREFIX):
-                skipped["foreign_channel"] += 1  # e.g. /foxglove/scene/...: not a fixstream stream
+                left_out["foreign_channel"] += 1  # e.g. /foxglove/scene/...: not a fixstream stream
+                continue
+            elif select is not None and not select(record.topic):
+                left_out["not_selected"] += 1
                 continue
             else:
                 try:
@@ -91,15 +116,20 @@ def replay(
                 completed = False
                 break
             pubs.put_bytes(key, payload, encoding)
+            n_published += 1
+            if progress is not None:
+                first_log_time = last_log_time if first_log_time is None else first_log_time
+                progress(n_published, max(0, last_log_time - first_log_time))
     finally:
         pubs.close()
-    result = ReplayResult(dict(pubs.counts), dict(skipped), completed, time.monotonic() - t0)
+    result = ReplayResult(dict(pubs.counts), dict(skipped), dict(left_out), completed, time.monotonic() - t0)
     log.info(
-        "replayed %d records on %d topics from %s (%d skipped) in %.2f s",
+        "replayed %d records on %d topics from %s (%d skipped, left out: %s) in %.2f s",
         result.total,
         len(result.published),
         path,
         sum(skipped.values()),
+        dict(left_out),
         result.wall_s,
     )
     return result

@@ -19,8 +19,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..stack.pki import IDENTITIES, make_pki
+    import sys
 
-    pki = make_pki(args.directory, days=args.days)
+    from ..stack.pki import IDENTITIES, make_pki
+    from . import exit_codes
+
+    if args.days < 1:
+        print("fixstream pki: --days must be >= 1", file=sys.stderr)
+        return exit_codes.USAGE
+    try:
+        pki = make_pki(args.directory, days=args.days)
+    except OSError as exc:
+        print(f"fixstream pki: {args.directory}: {exc.strerror or exc}", file=sys.stderr)
+        return exit_codes.USAGE
     print(f"wrote {pki.ca} and certificates for {', '.join(IDENTITIES)} in {pki.directory}")
     return 0

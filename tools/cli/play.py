@@ -1,17 +1,32 @@
 """``fixstream play FILE``: play a scenario (YAML, or a scenario name in --dir) or replay an MCAP onto Zenoh.
 
-A scenario waits until every service in its ``wait_for`` list holds a liveliness token (unless
-``--no-wait``), then publishes a start marker, the simulated truth and sensor streams in stamp order at
-``--rate`` times real time (0: as fast as possible) and an end marker with the count per key.
-An MCAP file is replayed in log-time order at ``--rate``, byte-identical to what was recorded.
-Exit status: 0 done, 1 interrupted, 2 bad file, 3 the services to wait for did not come up.
+A scenario waits until every service in its ``wait_for`` list holds a liveliness token (unless ``--no-wait``; for
+at most ``--wait-timeout`` seconds, else the file's ``wait_timeout_s``), then publishes a start marker, the simulated
+truth and sensor streams in stamp order at ``--rate`` times real time (0: as fast as possible) and an end marker
+with the count per key.
+
+An MCAP file is replayed in log-time order at ``--rate``, byte-identical to what was recorded. By default only the
+keys a player publishes go back on Zenoh (fixstream/sensor/**, fixstream/truth/**, fixstream/scenario/**,
+fixstream/group/*/uplink/**): replayed into a running stack, the services compute their fixes, tracks and
+diagnostics again, and the recorded ones would sit beside them on the same keys. ``--all`` replays every key,
+``--keys`` replays only the key expressions it names, ``--exclude`` leaves key expressions out (after either).
+Channels that are not fixstream streams (the recorder's Foxglove scene and map channels) are left out quietly.
+
+A progress line (messages, data time) is drawn on stderr when stderr is a terminal, or with ``--progress``.
+
+Exit status: 0 done; 1 interrupted (Ctrl-C, SIGTERM) before the end; 2 a bad file, scenario, option or an
+unreachable router; 3 the services to wait for did not come up within the wait timeout.
 """
 
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
-from .common import add_zenoh_arguments
+from .common import add_zenoh_arguments, key_expr
+
+#: ``--wait-timeout`` of a replay when not given (a scenario uses its file's ``wait_timeout_s``)
+REPLAY_WAIT_TIMEOUT_S = 30.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -28,74 +43,152 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="SERVICE[/INSTANCE]",
         help="also wait for this service's liveliness before publishing (repeatable; works for .mcap too)",
     )
-    parser.add_argument("--wait-timeout", type=float, default=30.0, help="seconds to wait for --wait-for services")
+    parser.add_argument(
+        "--wait-timeout",
+        type=float,
+        metavar="S",
+        help="seconds to wait for the services; default: the scenario file's wait_timeout_s, for a recording"
+        f" {REPLAY_WAIT_TIMEOUT_S:g}",
+    )
     parser.add_argument("--dir", help="scenario directory for names (default $FIXSTREAM_SCENARIOS_DIR or scenarios)")
     parser.add_argument("--linger", type=float, default=0.5, help="seconds to stay connected after the end marker")
+    show = parser.add_mutually_exclusive_group()
+    show.add_argument(
+        "--progress", action="store_true", default=None, help="draw the progress line on stderr even when not a tty"
+    )
+    show.add_argument(
+        "--no-progress", dest="progress", action="store_false", default=None, help="never draw the progress line"
+    )
+    rec = parser.add_argument_group("replay of a recording (.mcap)")
+    which = rec.add_mutually_exclusive_group()
+    which.add_argument(
+        "--keys",
+        action="append",
+        type=key_expr,
+        default=[],
+        metavar="KEYEXPR",
+        help="replay only the keys this expression matches (repeatable), instead of the player's keys",
+    )
+    which.add_argument(
+        "--all", action="store_true", help="replay every key, the recorded fixes, tracks and diagnostics too"
+    )
+    rec.add_argument(
+        "--exclude",
+        action="append",
+        type=key_expr,
+        default=[],
+        metavar="KEYEXPR",
+        help="leave out the keys this expression matches (repeatable)",
+    )
     add_zenoh_arguments(parser)
 
 
-def run(args: argparse.Namespace) -> int:
+def _stop_on_signals() -> Any:
     import signal
-    import sys
     import threading
+
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    return stop
+
+
+def _replay(args: argparse.Namespace) -> int:
+    import sys
     import time
     from pathlib import Path
 
+    from services.player.player import WaitTimeout, wait_for_alive
+    from services.player.replay import replay
+    from services.player.scenario import wait_keys
+    from services.player.selection import KeySelection, selected_total
+    from shared.mcap_io import McapReadError
+    from shared.session import open_session
+
+    from . import exit_codes, progress
+    from .common import zenoh_settings_from
+
+    if not Path(args.file).is_file():
+        print(f"fixstream play: {args.file}: no such file", file=sys.stderr)
+        return exit_codes.USAGE
+    select = KeySelection.from_options(args.keys, args.exclude, args.all)
+    line = None
+    if progress.wanted(args.progress):
+        line = progress.ProgressLine(f"replay {Path(args.file).name}", total=selected_total(args.file, select))
+    timeout = REPLAY_WAIT_TIMEOUT_S if args.wait_timeout is None else args.wait_timeout
+    stop = _stop_on_signals()
+    session = open_session(zenoh_settings_from(args))
+    try:
+        wait_for_alive(session, wait_keys(args.wait_for), timeout, stop)
+        result = replay(
+            session, args.file, rate=args.rate, stop=stop, select=select, progress=line.update if line else None
+        )
+        if line is not None:
+            line.finish()
+        time.sleep(max(args.linger, 0.0))
+    except WaitTimeout as exc:  # before OSError: a TimeoutError is one
+        print(f"fixstream play: {args.file}: waiting for services: {exc}", file=sys.stderr)
+        return exit_codes.TIMEOUT
+    except (McapReadError, OSError) as exc:
+        print(f"fixstream play: {args.file}: {exc}", file=sys.stderr)
+        return exit_codes.USAGE
+    finally:
+        session.close()
+    left = result.left_out
+    notes = []
+    if left.get("not_selected"):
+        notes.append(f"{left['not_selected']} on keys not replayed ({select.describe()} replayed)")
+    if left.get("foreign_channel"):
+        notes.append(f"{left['foreign_channel']} on Foxglove/foreign channels")
+    print(
+        f"replayed {result.total} records on {len(result.published)} keys from {args.file} "
+        f"({sum(result.skipped.values())} skipped) in {result.wall_s:.2f} s"
+        + (f"; left out: {', '.join(notes)}" if notes else ""),
+        flush=True,
+    )
+    return exit_codes.OK if result.completed else exit_codes.FAILURE
+
+
+def run(args: argparse.Namespace) -> int:
+    import sys
+    import time
+    from pathlib import Path
+
+    from . import exit_codes, progress
+
+    if args.rate < 0:
+        print("fixstream play: --rate must be >= 0", file=sys.stderr)
+        return exit_codes.USAGE
+    if args.wait_timeout is not None and args.wait_timeout <= 0:
+        print("fixstream play: --wait-timeout must be > 0", file=sys.stderr)
+        return exit_codes.USAGE
+    if Path(args.file).suffix == ".mcap":
+        return _replay(args)
+    if args.keys or args.exclude or args.all:
+        print("fixstream play: --keys, --exclude and --all select keys of a recording (.mcap)", file=sys.stderr)
+        return exit_codes.USAGE
+
+    from services.player.player import WaitTimeout, play_scenario
+    from services.player.scenario import ScenarioError, load_scenario, resolve
     from shared.session import open_session
 
     from .common import zenoh_settings_from
 
-    if args.rate < 0:
-        print("fixstream play: --rate must be >= 0", file=sys.stderr)
-        return 2
-    stop = threading.Event()
-
-    def install_signal_handlers() -> None:
-        signal.signal(signal.SIGTERM, lambda *_: stop.set())
-        signal.signal(signal.SIGINT, lambda *_: stop.set())
-
-    if Path(args.file).suffix == ".mcap":
-        from services.player.replay import replay
-        from shared.mcap_io import McapReadError
-
-        if not Path(args.file).is_file():
-            print(f"fixstream play: {args.file}: no such file", file=sys.stderr)
-            return 2
-        from services.player.player import WaitTimeout, wait_for_alive
-        from services.player.scenario import wait_keys
-
-        install_signal_handlers()
-        session = open_session(zenoh_settings_from(args))
-        try:
-            wait_for_alive(session, wait_keys(args.wait_for), args.wait_timeout, stop)
-            result = replay(session, args.file, rate=args.rate, stop=stop)
-            time.sleep(max(args.linger, 0.0))
-        except (McapReadError, OSError) as exc:
-            print(f"fixstream play: {args.file}: {exc}", file=sys.stderr)
-            return 2
-        except WaitTimeout as exc:
-            print(f"fixstream play: {args.file}: waiting for services: {exc}", file=sys.stderr)
-            return 3
-        finally:
-            session.close()
-        print(
-            f"replayed {result.total} records on {len(result.published)} keys from {args.file} "
-            f"({sum(result.skipped.values())} skipped) in {result.wall_s:.2f} s",
-            flush=True,
-        )
-        return 0 if result.completed else 1
-
-    from services.player.player import WaitTimeout, play_scenario
-    from services.player.scenario import ScenarioError, load_scenario, resolve
-
     try:
         scenario = load_scenario(resolve(args.file, args.dir))
+        update: dict[str, Any] = {}
         if args.wait_for:
-            scenario = scenario.model_copy(update={"wait_for": [*scenario.wait_for, *args.wait_for]})
+            update["wait_for"] = [*scenario.wait_for, *args.wait_for]
+        if args.wait_timeout is not None:
+            update["wait_timeout_s"] = args.wait_timeout  # the command line wins over the file
+        scenario = scenario.model_copy(update=update) if update else scenario
     except ScenarioError as exc:
         print(f"fixstream play: {exc}", file=sys.stderr)
-        return 2
-    install_signal_handlers()
+        return exit_codes.USAGE
+    line = None
+    if progress.wanted(args.progress):
+        line = progress.ProgressLine(f"play {scenario.name}", data_total_s=scenario.duration_s)
+    stop = _stop_on_signals()
     session = open_session(zenoh_settings_from(args))
     try:
         played = play_scenario(
@@ -107,15 +200,18 @@ def run(args: argparse.Namespace) -> int:
             rate=args.rate,
             wait=not args.no_wait,
             stop=stop,
+            progress=line.update if line else None,
         )
+        if line is not None:
+            line.finish()
         time.sleep(max(args.linger, 0.0))
     except WaitTimeout as exc:
         print(f"fixstream play: {scenario.name}: waiting for services: {exc}", file=sys.stderr)
-        return 3
+        return exit_codes.TIMEOUT
     finally:
         session.close()
     print(
         f"{scenario.name}: published {played.total} messages on {len(played.published)} keys in {played.wall_s:.2f} s",
         flush=True,
     )
-    return 0 if played.completed else 1
+    return exit_codes.OK if played.completed else exit_codes.FAILURE

@@ -1,4 +1,8 @@
-"""``fixstream status``: ask every service's status queryable (``fixstream/status/**``) and print every answer."""
+"""``fixstream status``: ask every service's status queryable (``fixstream/status/**``) and print every answer.
+
+Exit status: 0 when at least one service answered, 3 when none did within ``--timeout``, 2 for a bad selector or
+an unreachable router.
+"""
 
 from __future__ import annotations
 
@@ -20,6 +24,7 @@ def run(args: argparse.Namespace) -> int:
 
     from shared.session import open_session, query_all
 
+    from . import exit_codes
     from .common import zenoh_settings_from
 
     session = open_session(zenoh_settings_from(args))
@@ -48,5 +53,5 @@ def run(args: argparse.Namespace) -> int:
             print(f"    {reason}: {n}")
     if not bodies:
         print("no service answered")
-        return 1
-    return 0
+        return exit_codes.TIMEOUT
+    return exit_codes.OK
