@@ -29,6 +29,8 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
             "transport/link/tx/queue/congestion_control/block/wait_before_close",
             json.dumps(round(settings.block_close_s * 1e6)),
         )
+    # lossless delivery over sockets; see ZenohSettings.shared_memory for why the implicit SHM path is off
+    cfg.insert_json5("transport/shared_memory/enabled", json.dumps(settings.shared_memory))
     _insert_tls(cfg, settings)
     return cfg
 

@@ -10,6 +10,8 @@ import sys
 import threading
 from pathlib import Path
 
+import zenoh
+
 from shared.session import open_session
 from shared.settings import ZenohSettings
 
@@ -49,6 +51,7 @@ def run(args: argparse.Namespace) -> int:
             "block_close_s": args.block_close_s,
         }
     )
+    zenoh.init_log_from_env_or("error")  # RUST_LOG=zenoh=debug shows what the router does (ACL denials, drops)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
