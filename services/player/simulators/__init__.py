@@ -2,6 +2,7 @@
 
 from .base import (
     NS_PER_S,
+    ColumnarSimulator,
     Event,
     Exchange,
     ExchangeSpec,
@@ -21,6 +22,7 @@ from .registry import PLUGIN_MODULES, UnknownSimulator, get_simulator, known_kin
 __all__ = [
     "NS_PER_S",
     "PLUGIN_MODULES",
+    "ColumnarSimulator",
     "Event",
     "Exchange",
     "ExchangeSpec",
