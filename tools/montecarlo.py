@@ -9,9 +9,11 @@ event list the player would publish (:func:`services.player.timeline.stamp`), an
 * per estimator named in the scenario, its plugin's mc module's ``run_core(events, params, scenario)``
   (:mod:`shared.plugins`).
 
-Runs are spread over processes (``concurrent.futures.ProcessPoolExecutor``, spawn start method) and
-collected by run index, so the JSON is identical for any number of workers. Aggregates: ``sensor_stats``
-pooled over all samples of all runs, and each plugin's ``aggregate(per_run)``.
+Runs are spread over processes (``concurrent.futures.ProcessPoolExecutor``, spawn start method), or over the
+workers of a Dask distributed cluster (``scheduler="tcp://HOST:PORT"``, the optional extra ``fixstream[dask]``;
+see :func:`run_on_dask`), and collected by run index, so the JSON is identical for any number of workers and
+either way. Aggregates: ``sensor_stats`` pooled over all samples of all runs, and each plugin's
+``aggregate(per_run)``.
 
 An mc module (``services/<kind>/mc.py`` by convention, named in the folder's ``plugin.py``) exposes::
 
@@ -22,12 +24,14 @@ An mc module (``services/<kind>/mc.py`` by convention, named in the folder's ``p
 
 from __future__ import annotations
 
+import hashlib
 import importlib
 import json
 import math
 import multiprocessing
 import os
 import sys
+from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from types import ModuleType
@@ -44,6 +48,10 @@ EVENT_INSTANCE = "default"
 
 class MonteCarloError(RuntimeError):
     """The scenario cannot be run by ``fixstream mc`` (e.g. an estimator without an mc plugin)."""
+
+
+class DaskUnavailable(MonteCarloError):
+    """``scheduler`` was given but ``dask.distributed`` is not installed, or the scheduler cannot be reached."""
 
 
 def load_plugin(kind: str) -> ModuleType:
@@ -100,8 +108,10 @@ def run_montecarlo(
     seed: int | None = None,
     workers: int | None = None,
     progress: bool = True,
+    scheduler: str | None = None,
 ) -> dict[str, Any]:
-    """All runs, per-run and aggregate metrics as a JSON-able dict."""
+    """All runs, per-run and aggregate metrics as a JSON-able dict. ``scheduler``: the address of a Dask
+    distributed scheduler whose workers run the runs (``workers`` is then not used)."""
     from tqdm import tqdm
 
     if runs < 1:
@@ -110,8 +120,13 @@ def run_montecarlo(
     plugins = {est.instance: load_plugin(est.kind) for est in scenario.estimators}
     workers = max(1, min(workers or os.cpu_count() or 1, runs))
     results: list[dict[str, Any] | None] = [None] * runs
+    on_dask = run_on_dask(scheduler, scenario, seed, runs) if scheduler is not None else None
     with tqdm(total=runs, desc=f"mc {scenario.name}", unit="run", file=sys.stderr, disable=not progress) as bar:
-        if workers == 1:
+        if on_dask is not None:
+            for i, result in on_dask:
+                results[i] = result
+                bar.update()
+        elif workers == 1:
             for i in range(runs):
                 results[i] = run_once(scenario, seed, i)
                 bar.update()
@@ -140,6 +155,54 @@ def run_montecarlo(
             "aggregate": aggregate,
         }
     )
+
+
+def run_on_dask(scheduler: str, scenario: Scenario, seed: int, runs: int) -> Iterator[tuple[int, dict[str, Any]]]:
+    """``(run index, run_once(scenario, seed, run))`` for every run, as the Dask cluster at ``scheduler`` finishes them
+    (connected and submitted on the call, collected as the iterator is read).
+
+    Each run is one task (``run_once``, pure), submitted with the scenario pickled; the workers need the same
+    fixstream (and its scenario files, maps and tracks at the same relative paths, in their working directory) as
+    this process. A run that raises on a worker raises here. The cluster is Dask's own: scheduling, retries on a
+    lost worker and its dashboard are Dask's, nothing is brokered here."""
+    try:
+        from distributed import Client
+        from distributed import as_completed as dask_completed
+    except ImportError:
+        raise DaskUnavailable(NO_DASK) from None
+    try:
+        client = Client(scheduler, timeout=DASK_CONNECT_TIMEOUT_S, set_as_default=False)
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise DaskUnavailable(f"no Dask scheduler reachable at {scheduler}: {exc}") from None
+    # task keys name the campaign (scenario, seed, runs) and the run: distinct campaigns never share a result
+    token = hashlib.blake2b(f"{scenario.model_dump_json()}|{seed}|{runs}".encode(), digest_size=8).hexdigest()
+    futures = {
+        client.submit(run_once, scenario, seed, i, key=f"fixstream-mc-{scenario.name}-{token}-{i}", pure=False): i
+        for i in range(runs)
+    }
+
+    def results() -> Iterator[tuple[int, dict[str, Any]]]:
+        try:
+            for fut in dask_completed(futures, loop=client.loop):
+                yield futures[fut], fut.result()
+        finally:
+            client.close()
+
+    return results()
+
+
+def dask_available() -> bool:
+    """Whether ``dask.distributed`` can be imported (the optional extra ``fixstream[dask]``)."""
+    try:
+        import distributed  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+NO_DASK = "--scheduler needs dask.distributed, which is not installed: pip install 'fixstream[dask]'"
+#: how long the Dask client tries to reach its scheduler, s
+DASK_CONNECT_TIMEOUT_S = 20.0
 
 
 def dumps(result: dict[str, Any]) -> str:

@@ -18,7 +18,6 @@ import contextlib
 import logging
 import threading
 import time
-from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -32,6 +31,7 @@ from .publish import Publishers
 from .scenario import Scenario
 from .simulators import InteractiveSimulator
 from .timeline import build, marker, player_source
+from .wire import wire_chunks
 
 log = logging.getLogger("fixstream.player")
 
@@ -135,24 +135,31 @@ def play_scenario(
             spec = s.exchange_spec() if isinstance(s, InteractiveSimulator) else None
             if spec is not None:
                 exchanges[sid] = ZenohExchange(session, sid, spec, source, instance, stop)
-        # the events of timeline.iter_events: raw events stamped with source and per-key seq as they are encoded
-        # (timeline.stamp's copies of each message cost more than encoding it)
-        events = sim.raw_events(dict(exchanges))
-        seq: Counter[str] = Counter()
+        # the events of timeline.iter_events, encoded (wire.py: columns of nav_platform without a model per message)
+        chunks = wire_chunks(sim, source, dict(exchanges))
         t0 = time.monotonic()
         last_stamp = 0
         pubs.put(scenario_key, marker(scenario, seed, "start", 0, 0, instance))
         completed = True
-        for n_published, ev in enumerate(events, 1):
-            if not pacer.wait(ev.stamp_ns):
-                completed = False
-                log.warning("stopped after %d messages", sum(pubs.counts.values()) - 1)
-                break
-            pubs.put_stamped(ev.key, ev.msg, source, seq[ev.key])
-            seq[ev.key] += 1
-            last_stamp = ev.stamp_ns
-            if progress is not None:
-                progress(n_published, last_stamp)
+        paced = rate > 0
+        stopped = stop.is_set
+        put = pubs.put_bytes
+        n_published = 0
+        for stamps, keys_, encodings, payloads in chunks:
+            for stamp_ns, key, encoding, payload in zip(stamps, keys_, encodings, payloads, strict=True):
+                go_on = pacer.wait(stamp_ns) if paced else not stopped()
+                if not go_on:
+                    break
+                put(key, payload, encoding)
+                last_stamp = stamp_ns
+                if progress is not None:
+                    n_published += 1
+                    progress(n_published, last_stamp)
+            else:
+                continue
+            completed = False
+            log.warning("stopped after %d messages", sum(pubs.counts.values()) - 1)
+            break
         published = {k: n for k, n in pubs.counts.items() if k != scenario_key}
         pubs.put(scenario_key, marker(scenario, seed, "end", last_stamp, 1, instance, published))
         wall = time.monotonic() - t0

@@ -11,24 +11,42 @@ from schemas import Message
 from shared import codec
 
 
+class _Slot:
+    """A key's publisher, the encoding it last sent (string and Zenoh object) and how many puts it made."""
+
+    __slots__ = ("count", "encoding", "pub", "zenoh_encoding")
+
+    def __init__(self, pub: zenoh.Publisher, encoding: str) -> None:
+        self.pub = pub
+        self.encoding = encoding
+        self.zenoh_encoding = codec.zenoh_encoding(encoding)
+        self.count = 0
+
+
 class Publishers:
     """Declares a publisher per key on first use (``CongestionControl.BLOCK``, ``Reliability.RELIABLE``),
     so that nothing is dropped when the player runs as fast as possible; counts what was put per key."""
 
     def __init__(self, session: zenoh.Session) -> None:
         self.session = session
-        self.counts: Counter[str] = Counter()
-        self._pubs: dict[str, zenoh.Publisher] = {}
+        self._slots: dict[str, _Slot] = {}
+
+    @property
+    def counts(self) -> Counter[str]:
+        """Messages put per key."""
+        return Counter({key: slot.count for key, slot in self._slots.items() if slot.count})
 
     def put_bytes(self, key: str, payload: bytes, encoding: str) -> None:
-        pub = self._pubs.get(key)
-        if pub is None:
+        slot = self._slots.get(key)
+        if slot is None:
             pub = self.session.declare_publisher(
                 key, congestion_control=zenoh.CongestionControl.BLOCK, reliability=zenoh.Reliability.RELIABLE
             )
-            self._pubs[key] = pub
-        pub.put(payload, encoding=codec.zenoh_encoding(encoding))
-        self.counts[key] += 1
+            slot = self._slots[key] = _Slot(pub, encoding)
+        elif slot.encoding is not encoding and slot.encoding != encoding:
+            slot.encoding, slot.zenoh_encoding = encoding, codec.zenoh_encoding(encoding)
+        slot.pub.put(payload, encoding=slot.zenoh_encoding)
+        slot.count += 1
 
     def put(self, key: str, msg: Message) -> None:
         self.put_bytes(key, codec.encode(msg), codec.encoding_of(type(msg)))
@@ -38,7 +56,7 @@ class Publishers:
         self.put_bytes(key, codec.encode_stamped(msg, source, seq), codec.encoding_of(type(msg)))
 
     def close(self) -> None:
-        for pub in self._pubs.values():
+        for slot in self._slots.values():
             with contextlib.suppress(Exception):  # already gone with the session
-                pub.undeclare()
-        self._pubs.clear()
+                slot.pub.undeclare()
+        self._slots.clear()

@@ -66,7 +66,9 @@ class Simulation:
         chunk is made only after the consumer took the last event of the previous one.
         """
         ex = exchanges or {}
-        streams = [_checked(sid, _source(sim, ex.get(sid)), self.context.duration_ns) for sid, sim in self.simulators]
+        streams = [
+            checked(sid, event_source(sim, ex.get(sid)), self.context.duration_ns) for sid, sim in self.simulators
+        ]
         return heapq.merge(*streams, key=lambda e: e.stamp_ns)
 
 
@@ -87,13 +89,15 @@ def build(scenario: Scenario, seed: int, run: int | None = None) -> Simulation:
     return Simulation(scenario, context, built)
 
 
-def _source(sim: Simulator, exchange: Exchange | None) -> Iterator[Event]:
+def event_source(sim: Simulator, exchange: Exchange | None) -> Iterator[Event]:
+    """``sim.interact(exchange)`` for an interactive simulator given an exchange, else ``sim.events()``."""
     if exchange is not None and isinstance(sim, InteractiveSimulator):
         return sim.interact(exchange)
     return sim.events()
 
 
-def _checked(sim_id: str, events: Iterable[Event], duration_ns: int) -> Iterator[Event]:
+def checked(sim_id: str, events: Iterable[Event], duration_ns: int) -> Iterator[Event]:
+    """The events, raising :class:`SimulationError` at the first that breaks the simulator contract."""
     last = 0
     for ev in events:
         if ev.stamp_ns < last:

@@ -2,6 +2,7 @@
 
 from .base import (
     NS_PER_S,
+    ColumnarSimulator,
     Event,
     Exchange,
     ExchangeSpec,
@@ -20,6 +21,7 @@ from .registry import UnknownSimulator, get_simulator, known_kinds, plugin_modul
 
 __all__ = [
     "NS_PER_S",
+    "ColumnarSimulator",
     "Event",
     "Exchange",
     "ExchangeSpec",

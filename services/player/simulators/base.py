@@ -21,13 +21,16 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from schemas import Header, Message
 from shared.events import Event
+
+if TYPE_CHECKING:
+    from .columns import ColumnStream
 
 NS_PER_S = 1_000_000_000
 
@@ -130,6 +133,18 @@ class InteractiveSimulator(Protocol):
     def interact(self, exchange: Exchange) -> Iterator[Event]:
         """Events as ``events()``, asking ``exchange`` for the answers to each chunk's requests."""
         ...
+
+
+@runtime_checkable
+class ColumnarSimulator(Protocol):
+    """A simulator whose streams are columns (:mod:`.columns`), so the player can encode them without building a
+    model per message. ``events()`` must be the stamp-ordered merge of the streams' events, ties in list order."""
+
+    Params: ClassVar[type[SimParams]]
+
+    def events(self) -> Iterator[Event]: ...
+
+    def column_streams(self) -> list[ColumnStream]: ...
 
 
 def is_interactive(sim: object) -> bool:

@@ -19,6 +19,7 @@ from schemas import Truth
 from shared import keys
 
 from .base import NS_PER_S, Event, ScenarioContext, child_rng, sample_stamps_ns
+from .columns import ColumnStream
 from .registry import register
 from .sensors import DepthParams, KeyChunk, Sensor, SensorStream
 from .trajectory import Route, Trajectory
@@ -61,30 +62,27 @@ class NavPlatform:
             for s in params.sensors
         ]
 
-    def truth_events(self) -> Iterator[Event]:
+    def truth_stream(self) -> ColumnStream:
+        """:class:`schemas.Truth` at ``truth_rate_hz`` as columns."""
         stamps = sample_stamps_ns(self.params.truth_rate_hz, self.context.duration_ns)
         st = self.trajectory.states(stamps / NS_PER_S)
-        attitude = np.stack([st.heading_rad, st.pitch_rad, st.roll_rad], axis=1)
-        for i, stamp in enumerate(stamps.tolist()):
-            yield Event(
-                stamp,
-                self.truth_key,
-                Truth(
-                    header=self.context.header(stamp),
-                    platform=self.params.platform,
-                    position_m=st.position_m[i].tolist(),
-                    velocity_mps=st.velocity_mps[i].tolist(),
-                    acceleration_mps2=st.acceleration_mps2[i].tolist(),
-                    attitude_rad=attitude[i].tolist(),
-                    extra={
-                        "speed_mps": float(st.speed_mps[i]),
-                        "turn_rate_rps": float(st.turn_rate_rps[i]),
-                        "climb_rate_mps": float(st.climb_rate_mps[i]),
-                        "depth_m": -float(st.position_m[i, 2]),
-                    },
-                ),
-            )
+        columns = {
+            "position_m": st.position_m,
+            "velocity_mps": st.velocity_mps,
+            "acceleration_mps2": st.acceleration_mps2,
+            "attitude_rad": np.stack([st.heading_rad, st.pitch_rad, st.roll_rad], axis=1),
+            "extra.speed_mps": st.speed_mps,
+            "extra.turn_rate_rps": st.turn_rate_rps,
+            "extra.climb_rate_mps": st.climb_rate_mps,
+            "extra.depth_m": -st.position_m[:, 2],
+        }
+        return ColumnStream(
+            self.truth_key, Truth, self.context.frame_id, stamps, columns, {"platform": self.params.platform}
+        )
+
+    def column_streams(self) -> list[ColumnStream]:
+        """Truth, then each sensor in file order: :meth:`events` is their stamp-ordered merge, ties in this order."""
+        return [self.truth_stream(), *(s.column_stream() for s in self.sensors)]
 
     def events(self) -> Iterator[Event]:
-        streams = [self.truth_events(), *(s.events() for s in self.sensors)]
-        return heapq.merge(*streams, key=lambda e: e.stamp_ns)
+        return heapq.merge(*(c.events() for c in self.column_streams()), key=lambda e: e.stamp_ns)

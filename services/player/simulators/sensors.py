@@ -19,6 +19,7 @@ from schemas import Depth, Heading, InsSample, Message, SpeedLog
 from shared import keys
 
 from .base import NS_PER_S, Event, ScenarioContext, SimParams, sample_stamps_ns
+from .columns import ColumnStream
 from .error_models import gauss_markov, random_walk, white
 from .trajectory import TWO_PI, Trajectory
 
@@ -151,13 +152,13 @@ class SensorStream:
             cols.update(vx_mps=vn + err["vx"], vz_mps=ve + err["vz"], vh_mps=vu + err["vh"])
         return InsSample, cols
 
-    def events(self) -> Iterator[Event]:
+    def column_stream(self) -> ColumnStream:
+        """The samples as a :class:`ColumnStream` (the message type, each field per sample, the constant fields)."""
         model, cols = self.columns()
-        names = list(cols)
         constant: dict[str, object] = {}
         if isinstance(self.spec, SpeedLogParams):
             constant = {"avg_interval_s": self.dt_s, "bottom_lock": self.spec.type == "dvl"}
-        rows = zip(self.stamps.tolist(), *(cols[c].tolist() for c in names), strict=True)
-        for stamp, *values in rows:
-            msg = model(header=self.context.header(stamp), **dict(zip(names, values, strict=True)), **constant)
-            yield Event(stamp, self.key, msg)
+        return ColumnStream(self.key, model, self.context.frame_id, self.stamps, cols, constant)
+
+    def events(self) -> Iterator[Event]:
+        return self.column_stream().events()
