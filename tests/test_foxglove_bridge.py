@@ -219,7 +219,10 @@ class StreamPublisher(Publisher):
     def __init__(self, router: str, scenario: str) -> None:
         from samples import EXAMPLES
 
-        self.marker = EXAMPLES["ScenarioMarker"].model_copy(update={"scenario": scenario, "event": "start"})
+        example = EXAMPLES["ScenarioMarker"]
+        # a player's marker: the recorder opens a run (and loads the scenario's origin) only on a player's start
+        header = example.header.model_copy(update={"source": "player/bridge", "seq": 0})
+        self.marker = example.model_copy(update={"scenario": scenario, "event": "start", "header": header})
         self.plot, self.site, self.stray = EXAMPLES["RadarPlot"], EXAMPLES["RadarSite"], EXAMPLES["Heading"]
         super().__init__(router)
 

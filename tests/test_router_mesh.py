@@ -8,9 +8,8 @@ one router is the reference.
 
 What is compared: every recorded message, decoded, per channel and in order (``recorded_by_topic``), header
 included. Nothing is left out of the messages themselves: no fixstream message carries a receive time. What
-differs between two runs lives outside them: the MCAP records' ``log_time`` and ``publish_time`` (the recorder's
-wall clock at receipt) and the order of messages *across* channels, which Zenoh does not define (each key
-keeps its publisher's order; different keys can interleave differently on different routes).
+differs between two runs lives outside them: the order of messages *across* channels, which Zenoh does not define
+(each key keeps its publisher's order; different keys can interleave differently on different routes).
 
 Scenario: ``rd_demo`` (AUV group navigation, digest 002): three services (``coordinator-group1``,
 ``rd_nav-auv3``, ``rd_nav-auv4``) as the repository's compose.yaml configures them.

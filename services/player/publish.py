@@ -56,7 +56,7 @@ class Publishers:
         self.put_bytes(key, codec.encode_stamped(msg, source, seq), codec.encoding_of(type(msg)))
 
     def close(self) -> None:
+        """Undeclare every publisher; ``counts`` still says what was put (the replay reports it after closing)."""
         for slot in self._slots.values():
             with contextlib.suppress(Exception):  # already gone with the session
                 slot.pub.undeclare()
-        self._slots.clear()
