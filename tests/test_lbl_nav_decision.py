@@ -30,6 +30,7 @@ from scipy.special import logsumexp
 from scipy.stats import beta
 
 from schemas import BeaconRange, Depth, Header, Heading, Message, SpeedLog
+from schemas.base import MAX_STAMP_NS
 from schemas.lbl_nav import LblEvent, LblFix
 from services.lbl_nav.bounds import NoiseModel, exact_log_ratio_at
 from services.lbl_nav.config import LblNavConfig
@@ -294,17 +295,19 @@ FINITE_EXTREME = st.one_of(
     st.floats(allow_nan=True, allow_infinity=True),
     st.sampled_from([0.0, -0.0, 1e-300, -1e-300, 1e300, -1e300, 5e-324, 1e15, -1e15]),
 )
+#: stamps up to the schema's bound (MAX_STAMP_NS = 2**62): the decoder refuses anything beyond before a core sees it
 STAMPS = st.one_of(
-    st.integers(min_value=0, max_value=2**63 - 1),
-    st.sampled_from([0, 1, 2**63 - 1, 2**63 - 2, 2**62]),
+    st.integers(min_value=0, max_value=MAX_STAMP_NS),
+    st.sampled_from([0, 1, MAX_STAMP_NS - 1, MAX_STAMP_NS, 2**61]),
 )
 
 
 @st.composite
 def bad_message(draw: st.DrawFn) -> tuple[int, Message]:
     """An index into the base stream and a message to insert there: a copy of a nearby message with extreme or
-    invalid values, an unknown beacon, a duplicate, a stamp going backwards or one near 2**63 (built without
-    validation where the schema would refuse it: the core must survive what a decoder might let through)."""
+    invalid values, an unknown beacon, a duplicate, a stamp going backwards or one near the schema's 2**62 bound
+    (built without validation where the schema would refuse it: the core must survive what a decoder might let
+    through)."""
     base = _base_messages()
     i = draw(st.integers(min_value=2, max_value=len(base) - 1))
     ref = base[i]
