@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 
 from schemas import BeaconRange, BeaconTable, Current, Heading, SpeedLog
 
+from .models import ErrorModel
 from .simulation import ScenarioSpec, SimRun
 
 F64 = NDArray[np.float64]
@@ -40,17 +41,9 @@ DIFFUSE_M2 = 1e10
 
 
 @dataclass(frozen=True)
-class NoiseModel:
-    """The digest's error model (section 1): standard deviations and correlation times."""
+class NoiseModel(ErrorModel):
+    """The digest's error model (section 1) the simulator draws from, with the nominal sound speed."""
 
-    sigma_delta_m: float
-    sigma_v_m: float
-    sigma_dc_mps: float
-    sigma_dV_mps: float  # noqa: N815
-    sigma_dK_rad: float  # noqa: N815
-    sigma_dU_mps: float  # noqa: N815
-    tau_dK_s: float  # noqa: N815
-    tau_dU_s: float  # noqa: N815
     c_mps: float = 1500.0
 
     @classmethod

@@ -48,7 +48,7 @@ from numpy.typing import NDArray
 from scipy.linalg import cho_solve_banded, cholesky_banded
 
 from .config import LblNavConfig
-from .models import markov
+from .models import DrIncrement, ErrorModel, markov
 
 F64 = NDArray[np.float64]
 #: floor of sigma_w (m) so that a log without noise still gives a finite weight
@@ -68,30 +68,16 @@ class RangeObs:
 
 
 @dataclass(frozen=True)
-class EvidenceEpoch:
+class EvidenceEpoch(DrIncrement):
     """One epoch of the record: the integrated DR of (t_{k-1}, t_k] (m), its sigma_w scale and its ranges."""
 
-    dt_s: float
-    ve_dt_m: float
-    vn_dt_m: float
-    ue_dt_m: float = 0.0
-    un_dt_m: float = 0.0
-    sigma_w_scale: float = 1.0
     ranges: tuple[RangeObs, ...] = ()
 
 
 @dataclass(frozen=True)
-class Priors:
+class Priors(ErrorModel):
     """The error model the evidence is computed with (the estimator's configuration by default)."""
 
-    sigma_delta_m: float
-    sigma_v_m: float
-    sigma_dc_mps: float
-    sigma_dV_mps: float  # noqa: N815
-    sigma_dK_rad: float  # noqa: N815
-    sigma_dU_mps: float  # noqa: N815
-    tau_dK_s: float  # noqa: N815
-    tau_dU_s: float  # noqa: N815
     markov_form: str = "exact"
     sigma_w_linear: bool = False
 

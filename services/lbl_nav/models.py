@@ -29,12 +29,29 @@ COPY_IDX = (IX, IY, IDK, IUN, IUE)
 
 
 @dataclass(frozen=True)
-class DrInterval:
-    """Dead-reckoning data of one interval (t_{k-1}, t_k], integrated (section 1.5, [IMPL] sub-steps).
+class ErrorModel:
+    """The digest's error model (section 1): standard deviations (m, m/s, rad) and correlation times (s) of the
+    initial position, the speed-log white noise, the sound-speed bias, the log scale error, the heading error and
+    the current. The filter's configuration, the exact evidence (:class:`.evidence.Priors`) and the bounds of the
+    tests (:class:`.bounds.NoiseModel`) all extend this one list."""
+
+    sigma_delta_m: float
+    sigma_v_m: float
+    sigma_dc_mps: float
+    sigma_dV_mps: float  # noqa: N815
+    sigma_dK_rad: float  # noqa: N815
+    sigma_dU_mps: float  # noqa: N815
+    tau_dK_s: float  # noqa: N815
+    tau_dU_s: float  # noqa: N815
+
+
+@dataclass(frozen=True)
+class DrIncrement:
+    """Dead reckoning integrated over one interval (t_{k-1}, t_k] (section 1.5, [IMPL] sub-steps).
 
     ``ve_dt_m`` = integral of V^E dt and ``vn_dt_m`` = integral of V^N dt with V from the log and the measured
     heading; ``ue_dt_m``/``un_dt_m`` the same for the known current U. ``sigma_w_scale`` inflates sigma_w over
-    DR gaps; ``valid`` is False when no usable DR exists for the interval (gap longer than the hold limit).
+    DR gaps.
     """
 
     dt_s: float
@@ -43,6 +60,13 @@ class DrInterval:
     ue_dt_m: float = 0.0
     un_dt_m: float = 0.0
     sigma_w_scale: float = 1.0
+
+
+@dataclass(frozen=True)
+class DrInterval(DrIncrement):
+    """A :class:`DrIncrement` as the filter sees it: ``valid`` is False when no usable DR exists for the interval
+    (gap longer than the hold limit), ``gap_s`` the gap it bridged."""
+
     valid: bool = True
     gap_s: float = 0.0
 
