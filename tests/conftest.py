@@ -8,6 +8,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -23,30 +24,36 @@ def fixstream_cmd(*args: str) -> list[str]:
     return [sys.executable, "-m", "tools.cli.main", *args]
 
 
-@pytest.fixture()
-def router() -> Iterator[str]:
-    """A ``fixstream router`` subprocess on a free loopback port; yields its endpoint."""
+@contextmanager
+def running_router(*connect: str) -> Iterator[str]:
+    """A ``fixstream router`` subprocess on a free loopback port, meshed with the routers at ``connect``; yields its
+    endpoint. Its log goes to a temporary file (a pipe nobody reads could fill and stall it)."""
     from shared.session import free_tcp_port
 
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    proc = subprocess.Popen(
-        fixstream_cmd("router", "--listen", endpoint),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        cwd=REPO,
-    )
-    assert proc.stdout is not None
-    line = proc.stdout.readline()
-    assert "listening" in line, f"router did not start: {line!r} {proc.stderr.read() if proc.stderr else ''}"
-    try:
-        yield endpoint
-    finally:
-        proc.terminate()
+    args = ["router", "--listen", endpoint, *(a for c in connect for a in ("--connect", c))]
+    with tempfile.TemporaryFile("w+") as log:
+        proc = subprocess.Popen(fixstream_cmd(*args), stdout=subprocess.PIPE, stderr=log, text=True, cwd=REPO)
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        if "listening" not in line:
+            log.seek(0)
+            raise AssertionError(f"router did not start: {line!r} {log.read()[-3000:]}")
         try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+            yield endpoint
+        finally:
+            proc.terminate()
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+
+
+@pytest.fixture()
+def router() -> Iterator[str]:
+    """A ``fixstream router`` subprocess on a free loopback port; yields its endpoint."""
+    with running_router() as endpoint:
+        yield endpoint
 
 
 def service_env(endpoint: str, **extra: str) -> dict[str, str]:

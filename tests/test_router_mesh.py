@@ -20,17 +20,15 @@ from __future__ import annotations
 import json
 import subprocess
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
-from conftest import REPO, fixstream_cmd
+from conftest import REPO, fixstream_cmd, running_router
 from stack_support import COMPOSE, recorded_by_topic, stack_env
 
 from schemas import Message
 from shared import keys
-from shared.session import free_tcp_port, open_session
+from shared.session import open_session
 from shared.settings import ZenohSettings
 from tools.stack import load_compose
 
@@ -38,24 +36,6 @@ pytestmark = pytest.mark.e2e
 
 SCENARIO = REPO / "scenarios" / "rd_demo.yaml"
 ESTIMATORS = ["coordinator-group1", "rd_nav-auv3", "rd_nav-auv4"]
-
-
-@contextmanager
-def router(*connect: str) -> Iterator[str]:
-    """A ``fixstream router`` on a free loopback port, meshed with the routers at ``connect``; yields its endpoint."""
-    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    args = ["router", "--listen", endpoint, *(a for c in connect for a in ("--connect", c))]
-    proc = subprocess.Popen(fixstream_cmd(*args), stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-    assert proc.stdout is not None
-    assert "listening" in proc.stdout.readline(), "router did not start"
-    try:
-        yield endpoint
-    finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
 
 
 def _composed(service: str, endpoint: str, out_dir: Path) -> tuple[list[str], dict[str, str]]:
@@ -116,9 +96,9 @@ def run(player_side: str, estimator_side: str, out_dir: Path) -> dict[str, list[
 
 
 def test_two_meshed_routers_record_what_one_router_records(tmp_path: Path) -> None:
-    with router() as single:
+    with running_router() as single:
         reference = run(single, single, tmp_path / "single")
-    with router() as a, router(a) as b:
+    with running_router() as a, running_router(a) as b:
         meshed = run(a, b, tmp_path / "mesh")
 
     # the run reached every side: sensors, the group's closed loop (assignments) and the fixes of both AUVs
