@@ -78,24 +78,44 @@ class Output:
 
 Handler = Callable[[str, Message], Iterable[Output] | None]
 RawHandler = Callable[[str, bytes, str], Iterable[Output] | None]
+#: the message types a handler takes on a key, or None: the key is not the handler's (the sample is counted as
+#: ``ignored`` and never validated)
+KeyTypes = Callable[[str], tuple[type[Message], ...] | None]
+#: repairs an unpacked payload that failed validation against ``model`` (a scan that loses its bad plots rather than
+#: itself), or re-raises the :class:`~shared.codec.DecodeError`
+Salvage = Callable[[type[Message], Any, codec.DecodeError], Message]
 
 
 @dataclass
 class Subscription:
-    """What a service listens to: a key expression, the accepted models and the handler."""
+    """What a service listens to, and how its samples reach the handler.
+
+    The typed path (``handler``): the base unpacks each payload once (its header feeds the seq checks and the end of
+    a run), validates it once into the model its encoding names (``salvage`` may repair what fails), refuses a type
+    the handler does not take (``accepts``: the types, or a :data:`KeyTypes` per key; ``others="ignore"`` counts
+    other types as ``ignored`` instead), refuses a stamp older than the last on its key if ``monotonic``, and calls
+    ``handler(key, msg)``. Empty ``accepts``: any message. Every refusal is counted and reported with its reason.
+
+    ``raw_handler(key, payload, encoding)`` takes the bytes as they arrived instead (the recorder, which keeps what
+    fails validation)."""
 
     key_expr: str
     handler: Handler | None = None
-    accepts: tuple[type[Message], ...] = ()
+    accepts: tuple[type[Message], ...] | KeyTypes = ()
+    others: Literal["reject", "ignore"] = "reject"
     monotonic: bool = False
+    salvage: Salvage | None = None
     raw_handler: RawHandler | None = None
 
 
 @dataclass
 class Counters:
     received: int = 0
+    #: taken by the service (``ignored`` included): ``received == accepted + rejected``
     accepted: int = 0
     rejected: int = 0
+    #: accepted samples no handler had a use for (a key or type the service does not read)
+    ignored: int = 0
     published: int = 0
     #: samples dropped before processing (the inbound queue was full), never in ``received``
     dropped: int = 0
@@ -110,6 +130,7 @@ class Counters:
             "received": self.received,
             "accepted": self.accepted,
             "rejected": self.rejected,
+            "ignored": self.ignored,
             "published": self.published,
             "dropped": self.dropped,
             "publish_failed": self.publish_failed,
@@ -390,24 +411,28 @@ class Service:
             self.reject(key, "payload_too_large", f"{len(payload)} bytes > max_payload_bytes {self._max_payload}")
             return
         sub = self._match(key)
+        try:  # once: the header for the accounting, the object for the validation
+            obj, unpack_error = codec.unpack(payload), None
+        except codec.DecodeError as exc:
+            obj, unpack_error = None, exc
         counted = False
         if sub is not None:
             try:
-                counted = self._account(key, payload)
+                counted = self._account(key, None if unpack_error else codec.header_of(obj))
             except InputRejected as exc:
                 self.reject(key, exc.reason, exc.detail)
                 return
-        outputs = self._dispatch(key, payload, encoding, sub)
+        outputs = self._dispatch(key, payload, encoding, sub, obj, unpack_error)
         if outputs is not None:
             self.counters.accepted += 1
             self._publish_all(outputs)
         if counted and self._pending_end is not None:
             self._end_scenario(force=False)
 
-    def _account(self, key: str, payload: bytes) -> bool:
-        """The input stamp bound, seq checks of the sample's publisher; True if the sample counts towards its
-        player's end marker. Raises InputRejected for a stamp beyond the input bound."""
-        header = codec.peek_header(payload)
+    def _account(self, key: str, header: tuple[str, int, int] | None) -> bool:
+        """The input stamp bound, seq checks of the sample's publisher (``header``: its source, seq and stamp);
+        True if the sample counts towards its player's end marker. Raises InputRejected for a stamp beyond the input
+        bound."""
         if header is None:
             return False  # does not unpack: the decode reports it; it counts for nobody
         source, seq, stamp = header
@@ -437,18 +462,44 @@ class Service:
         self._last_arrival = time.monotonic()
         return True
 
-    def _dispatch(self, key: str, payload: bytes, encoding: str, sub: Subscription | None) -> Iterable[Output] | None:
-        """The handler's outputs (``()`` if none), or None when the sample was rejected (and reported)."""
+    def _dispatch(
+        self,
+        key: str,
+        payload: bytes,
+        encoding: str,
+        sub: Subscription | None,
+        obj: Any,
+        unpack_error: codec.DecodeError | None,
+    ) -> Iterable[Output] | None:
+        """The handler's outputs (``()`` if none), or None when the sample was rejected (and reported).
+
+        ``obj`` is the unpacked payload (``unpack_error`` if it did not unpack): validated here, once."""
         try:
             if sub is not None and sub.raw_handler is not None:
                 return sub.raw_handler(key, payload, encoding) or ()
-            msg = codec.decode(payload, encoding)
-            if isinstance(msg, ScenarioMarker):
+            accepts = () if sub is None else sub.accepts
+            types = accepts(key) if callable(accepts) else accepts
+            if types is None:
+                self.counters.ignored += 1
+                return ()
+            model = codec.model_for_encoding(encoding)  # the encoding is judged first, as codec.decode does
+            if unpack_error is not None:
+                raise unpack_error
+            try:
+                msg = codec.validate(model, obj)
+            except codec.DecodeError as exc:
+                if sub is None or sub.salvage is None:
+                    raise
+                msg = sub.salvage(model, obj, exc)
+            if isinstance(msg, ScenarioMarker) and _is_scenario_key(key):
                 return self._on_marker(msg)
             if sub is None or sub.handler is None:
                 raise InputRejected("no_handler", f"nothing handles {key}")
-            if sub.accepts and not isinstance(msg, sub.accepts):
-                allowed = ", ".join(m.__name__ for m in sub.accepts)
+            if types and not isinstance(msg, types):
+                if sub.others == "ignore":
+                    self.counters.ignored += 1
+                    return ()
+                allowed = ", ".join(m.__name__ for m in types)
                 raise InputRejected("unexpected_type", f"{type(msg).__name__} on {key}; expects {allowed}")
             if sub.monotonic:
                 self._check_monotonic(key, msg)

@@ -262,7 +262,7 @@ def test_other_types_on_the_vehicle_keys_are_ignored_and_a_beacon_table_replaces
     configured = make_service(beacons=table.beacons)
     stray = (f"{keys.ROOT}/sensor/{VEHICLE}/gps/0", Truth(header=table.header, platform=VEHICLE, position_m=[0, 0, 0]))
     out = configured.run_offline([stray, *feed[1:]])
-    assert configured.status()["events"]["ignored"] == 1 and configured.counters.rejected == 0
+    assert configured.status()["counters"]["ignored"] == 1 and configured.counters.rejected == 0
     assert [o.msg for o in out] == [o.msg for o in make_service().run_offline(feed)]
     # a vehicle other than the instance name
     other = make_service(instance="lbl-a", vehicle=VEHICLE)

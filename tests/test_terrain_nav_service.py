@@ -170,7 +170,7 @@ def test_vehicle_may_differ_from_the_instance_and_other_sensors_are_ignored(
         ("fixstream/sensor/tan1/dvl/dvl0", Depth(header=_hdr(t + 2), depth_m=1.0)),  # another kind of sensor
     ]
     out = svc.run_offline([*feed[:6], *others, *feed[6:]])
-    assert svc.events["ignored"] == 2 and not diags(out, "second")
+    assert svc.counters.ignored == 2 and not diags(out, "second")
     a, b = on_key(out, FIX_KEY), on_key(clean_out, FIX_KEY)
     skip: Any = {"header": True, "verdict": {"header"}}
     assert [m.model_dump(exclude=skip) for m in a] == [m.model_dump(exclude=skip) for m in b] and len(a) >= 15

@@ -46,9 +46,9 @@ from typing import Any, ClassVar, Literal, cast
 from pydantic import Field, field_validator
 from pydantic_settings import SettingsConfigDict
 
-from schemas import RadarPlot, RadarSite, ScenarioMarker, TrackEnd
+from schemas import Message, RadarPlot, RadarSite, ScenarioMarker, TrackEnd
 from schemas.attitude import AttitudeEstimate
-from shared import codec, keys
+from shared import keys
 from shared.service import InputRejected, Output, Service, Subscription
 from shared.settings import ServiceSettings, ZenohSettings, core_config_of
 
@@ -179,11 +179,11 @@ class AttitudeService(Service):
 
     # ----- Service hooks ---------------------------------------------------------------------------------------
     def subscriptions(self) -> list[Subscription]:
-        return [Subscription(self.in_key, raw_handler=self.on_sample)]
+        return [Subscription(self.in_key, self.on_input)]
 
-    def on_sample(self, key: str, payload: bytes, encoding: str) -> list[Output]:
-        """One sample of the site: decode (the base reports a DecodeError), check, run the core."""
-        msg = codec.decode(payload, encoding)
+    def on_input(self, key: str, msg: Message) -> list[Output]:
+        """One validated sample of the site (the base decoded it once): check its type against its key, run the
+        core."""
         expected = _expected_type(key)
         if expected is None or not isinstance(msg, expected):
             want = "nothing (unknown key)" if expected is None else expected.__name__

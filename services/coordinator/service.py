@@ -32,9 +32,9 @@ from typing import Any, ClassVar, Literal, cast
 from pydantic import Field
 from pydantic_settings import SettingsConfigDict
 
-from schemas import ScenarioMarker
+from schemas import Message, ScenarioMarker
 from schemas.rd_nav import BeaconAssignment, DepartureGrant
-from shared import codec, keys
+from shared import keys
 from shared.service import Output, Service, Subscription
 from shared.settings import ServiceSettings, ZenohSettings
 
@@ -113,14 +113,13 @@ class CoordinatorService(Service):
 
     # ----- Service hooks ---------------------------------------------------------------------------------------
     def subscriptions(self) -> list[Subscription]:
-        return [Subscription(self.in_expr, raw_handler=self.on_sample)]
+        return [Subscription(self.in_expr, self.on_input)]
 
-    def on_sample(self, key: str, payload: bytes, encoding: str) -> list[Output]:
-        """One uplink sample: decode (the base reports a DecodeError), run the protocol, publish decisions + reply.
+    def on_input(self, key: str, msg: Message) -> list[Output]:
+        """One validated uplink message (the base decoded it once): run the protocol, publish decisions + reply.
 
         A refused input still gets its reply (published first), then the refusal is raised for the base to count
         and report."""
-        msg = codec.decode(payload, encoding)
         answer = self.protocol.handle(key, msg)
         out: list[Output] = []
         for d in answer.decisions:

@@ -11,7 +11,7 @@ core's; the adapter adds the transport, the key names and the reporting. Keys (`
   :class:`~schemas.BeaconTable` (replaces the configured table) and :class:`~schemas.NavReset`, whatever the key
   below the prefix (the ``lbl_nav`` player plugin uses ``lbl/rx0``, ``lbl/beacons``, ``speed_log/log0``,
   ``heading/compass0``, ``depth/depth0``, ``current/model0``). Other message types of the vehicle are ignored
-  (counted in ``events.ignored``);
+  (counted in the base's ``counters.ignored``);
 * out: ``fixstream/fix/lbl/<vehicle>`` (:class:`~schemas.lbl_nav.LblFix`, one per closed epoch) and
   ``fixstream/fix/lbl/<vehicle>/event`` (:class:`~schemas.lbl_nav.LblEvent`: launch, decision, merge, ...);
 * ``fixstream/diag/lbl_nav/<instance>``: every refused input with its reason, and the events below;
@@ -52,7 +52,7 @@ from pydantic_settings import SettingsConfigDict
 
 from schemas import BeaconRange, BeaconTable, Current, Depth, Heading, Message, NavReset, ScenarioMarker, SpeedLog
 from schemas.lbl_nav import LblEvent, LblFix
-from shared import codec, keys
+from shared import keys
 from shared.service import Output, Service, Subscription
 from shared.settings import ServiceSettings, ZenohSettings, core_config_of
 
@@ -141,15 +141,11 @@ class LblNavService(Service):
 
     # ----- Service hooks ---------------------------------------------------------------------------------------
     def subscriptions(self) -> list[Subscription]:
-        return [Subscription(self.in_key, raw_handler=self.on_sample)]
+        return [Subscription(self.in_key, self.on_input, accepts=INPUTS, others="ignore")]
 
-    def on_sample(self, key: str, payload: bytes, encoding: str) -> list[Output]:
-        """One sample of the vehicle: decode (the base reports a DecodeError), dispatch by type, run the core
-        (an ``InputRejected`` propagates: the base counts and reports it)."""
-        msg = codec.decode(payload, encoding)
-        if not isinstance(msg, INPUTS):
-            self.events["ignored"] += 1
-            return []
+    def on_input(self, key: str, msg: Message) -> list[Output]:
+        """One validated input of the vehicle (the base decoded it once; other types are counted as ignored): run the
+        core (an ``InputRejected`` propagates: the base counts and reports it)."""
         return [self._output(key, m) for m in self.core.step(msg)]
 
     def on_scenario_end(self, marker: ScenarioMarker) -> list[Output]:

@@ -51,7 +51,7 @@ from schemas import Message, ScenarioMarker
 from schemas.pcl_tracker import PclScanReport
 from schemas.radar import BistaticConfigUpdate, BistaticPlot, BistaticScan
 from shared import codec, keys
-from shared.service import InputRejected, Output, Service, Subscription
+from shared.service import Output, Service, Subscription
 from shared.settings import ZenohSettings
 
 from .core import PclTracker
@@ -59,6 +59,8 @@ from .settings import PclTrackerSettings, PclTrackerSettingsBase, to_config
 
 log = logging.getLogger("fixstream.pcl_tracker")
 
+#: what the tracker reads on its pair's key
+INPUTS: tuple[type[Message], ...] = (BistaticScan, BistaticConfigUpdate)
 #: plot-level reasons (count per plot): a plot refused or flagged inside an accepted scan
 _PLOT_FLAGS_INFO = {"low_rb", "near_baseline", "sigma_defaulted"}
 #: scan flags already reported another way (a rejected message, or a plot flag)
@@ -142,10 +144,12 @@ class PclTrackerService(Service):
         self.resets = 0
         #: plots refused at decoding, per scan id, until that scan's report is published
         self._dropped_by_scan: dict[int, Counter[str]] = {}
+        #: plots :meth:`_salvage` refused in the sample being dispatched (read, and cleared, by its handler)
+        self._salvaged: Counter[str] = Counter()
 
     # ----- Service hooks ------------------------------------------------------------------------
     def subscriptions(self) -> list[Subscription]:
-        return [Subscription(self.in_key, raw_handler=self._on_input)]
+        return [Subscription(self.in_key, self._on_input, accepts=INPUTS, salvage=self._salvage)]
 
     def on_scenario_end(self, marker: ScenarioMarker) -> Iterable[Output]:
         """Every scan of the run has arrived (the base waits for them): flush the reorder buffer, then start a
@@ -189,10 +193,11 @@ class PclTrackerService(Service):
         }
 
     # ----- sample path --------------------------------------------------------------------------
-    def _on_input(self, key: str, payload: bytes, encoding: str) -> list[Output]:
-        msg, dropped = self._decode(payload, encoding)
-        if not isinstance(msg, BistaticScan | BistaticConfigUpdate):
-            raise InputRejected("unexpected_type", f"{type(msg).__name__} on {key}; expects BistaticScan")
+    def _on_input(self, key: str, msg: Message) -> list[Output]:
+        """One validated scan or configuration update (the base decoded it once, :meth:`_salvage` repairing a scan
+        with bad plots): run the core, count the plots refused at decoding in the scan's report."""
+        assert isinstance(msg, BistaticScan | BistaticConfigUpdate)
+        dropped, self._salvaged = self._salvaged, Counter()
         scan = msg if isinstance(msg, BistaticScan) else None
         last = self.core.last_scan_id
         t0, c0 = time.perf_counter(), time.thread_time()
@@ -212,41 +217,35 @@ class PclTrackerService(Service):
                 self._event(key, "out_of_order", detail, scan.header.stamp_ns, "info")
         return self._outputs(key, reports)
 
-    def _decode(self, payload: bytes, encoding: str) -> tuple[Message, Counter[str]]:
-        """Decode strictly; a scan whose only problems are in some plots loses those plots, not the scan."""
-        try:
-            return codec.decode(payload, encoding), Counter()
-        except codec.DecodeError as exc:
-            if codec.model_for_encoding(encoding) is not BistaticScan or exc.reason in (
-                "bad_msgpack",
-                "trailing_bytes",
-            ):
-                raise
-            obj = codec.unpack(payload)
-            plots = obj.get("plots") if isinstance(obj, dict) else None
-            if not isinstance(plots, list):
-                raise
-            good: list[Any] = []
-            dropped: Counter[str] = Counter()
-            for p in plots:
+    def _salvage(self, model: type[Message], obj: Any, error: codec.DecodeError) -> Message:
+        """A scan whose only problems are in some plots loses those plots, not the scan (they are counted in its
+        report); anything else re-raises the decoding error."""
+        plots = obj.get("plots") if isinstance(obj, dict) else None
+        if model is not BistaticScan or not isinstance(plots, list):
+            raise error
+        good: list[Any] = []
+        dropped: Counter[str] = Counter()
+        for p in plots:
+            try:
+                BistaticPlot.model_validate(p, strict=True)
+                good.append(p)
+                continue
+            except ValidationError as pexc:
+                err = pexc
+            fixed = _sanitised(p)
+            if fixed is not None:
                 try:
-                    BistaticPlot.model_validate(p, strict=True)
-                    good.append(p)
+                    BistaticPlot.model_validate(fixed, strict=True)
+                    good.append(fixed)
                     continue
                 except ValidationError as pexc:
                     err = pexc
-                fixed = _sanitised(p)
-                if fixed is not None:
-                    try:
-                        BistaticPlot.model_validate(fixed, strict=True)
-                        good.append(fixed)
-                        continue
-                    except ValidationError as pexc:
-                        err = pexc
-                dropped[_plot_reason(err)] += 1
-            if not dropped and good == plots:
-                raise
-            return codec.validate(BistaticScan, {**obj, "plots": good}), dropped
+            dropped[_plot_reason(err)] += 1
+        if not dropped and good == plots:
+            raise error
+        scan = codec.validate(BistaticScan, {**obj, "plots": good})
+        self._salvaged = dropped
+        return scan
 
     def _outputs(self, key: str, reports: list[PclScanReport]) -> list[Output]:
         outputs: list[Output] = []

@@ -54,8 +54,8 @@ from schemas import (
     SpeedLog,
 )
 from schemas.rd_nav import BeaconAssignment, RdNavFix, TdoaCycle, VehicleStatus
-from shared import codec, keys
-from shared.service import InputRejected, Output, Service, Subscription
+from shared import keys
+from shared.service import Output, Service, Subscription
 from shared.settings import ServiceSettings, ZenohSettings, core_config_of
 
 from .config import RdNavConfig
@@ -147,14 +147,10 @@ class RdNavService(Service):
 
     # ----- Service hooks ---------------------------------------------------------------------------------------
     def subscriptions(self) -> list[Subscription]:
-        return [Subscription(self.in_expr, raw_handler=self.on_sample)]
+        return [Subscription(self.in_expr, self.on_input, accepts=INPUTS)]
 
-    def on_sample(self, key: str, payload: bytes, encoding: str) -> list[Output]:
-        """One sample of the vehicle: decode (the base reports a DecodeError), check the type, run the core."""
-        msg = codec.decode(payload, encoding)
-        if not isinstance(msg, INPUTS):
-            allowed = ", ".join(m.__name__ for m in INPUTS)
-            raise InputRejected("unexpected_type", f"{type(msg).__name__} on {key}; expects {allowed}")
+    def on_input(self, key: str, msg: Message) -> list[Output]:
+        """One validated sample of the vehicle (the base decoded it once and refused other types): run the core."""
         produced = self.core.step(msg)  # InputRejected propagates: the base counts and reports it
         out: list[Output] = []
         for m in produced:

@@ -8,8 +8,9 @@ Keys (``<vehicle>`` = ``FIXSTREAM_TERRAIN_NAV_VEHICLE``, default the instance na
 * in, one subscription ``fixstream/sensor/<vehicle>/**``: ``.../ins/<id>`` (:class:`InsSample`),
   ``.../radalt/<id>`` (:class:`RadioAltimeter`), ``.../baro/<id>`` (:class:`BaroAltitude`) and
   ``.../reset/<id>`` (:class:`NavReset`), ``<id>`` any unless configured. Other sensors of the vehicle are
-  ignored (counted in ``events.ignored``). One subscription, because Zenoh runs each subscriber's callbacks
-  on its own thread: two subscribers may interleave one publisher's messages out of order;
+  ignored (counted in the base's ``counters.ignored``, never validated). One subscription, because Zenoh runs
+  each subscriber's callbacks on its own thread: two subscribers may interleave one publisher's messages out of
+  order;
 * out: ``fixstream/fix/terrain/<vehicle>`` (:class:`TerrainFix`, after each valid verdict) and
   ``fixstream/fix/terrain/<vehicle>/verdict`` (:class:`TerrainVerdict`: every evaluation and the status
   verdicts ``OUT_OF_ZONE``, ``GAP``, ``RESET``);
@@ -33,7 +34,7 @@ is left.
 **Counters.** The base's ``received = accepted + rejected`` holds: a buffered message counts as accepted
 until the core refuses it, which moves it to ``rejected`` under the core's reason. ``status_extra`` adds
 ``pending`` (in the buffer), the core's own counters, ``events`` (``ins_gap``, ``out_of_zone``,
-``ignored``, ``late``: arrived behind the buffer), ``outputs``, ``sessions`` and the last verdict.
+``late``: arrived behind the buffer), ``outputs``, ``sessions`` and the last verdict.
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ from pydantic_settings import SettingsConfigDict
 
 from schemas import BaroAltitude, InsSample, Message, NavReset, RadioAltimeter, ScenarioMarker
 from schemas.terrain_nav import TerrainFix, TerrainVerdict
-from shared import codec, keys
+from shared import keys
 from shared.service import InputRejected, Output, Service, Subscription
 from shared.settings import ServiceSettings, ZenohSettings
 
@@ -197,24 +198,22 @@ class TerrainNavService(Service):
 
     # ----- Service hooks ---------------------------------------------------------------------------------------
     def subscriptions(self) -> list[Subscription]:
-        return [Subscription(f"{self._prefix}**", raw_handler=self.on_sample)]
+        return [Subscription(f"{self._prefix}**", self.on_input, accepts=self.types_on)]
 
-    def on_sample(self, key: str, payload: bytes, encoding: str) -> list[Output]:
-        """One sample of the vehicle: decode, check, buffer; returns what the released messages produced."""
-        self._last_input_wall = time.monotonic()
+    def types_on(self, key: str) -> tuple[type[Message], ...] | None:
+        """The message type the vehicle's ``key`` carries, or None for a sensor this service does not read (the base
+        counts it as ignored, unvalidated)."""
         parts = key.split("/")
         model = self._kinds.get(parts[3]) if len(parts) == 5 else None
         wanted = self._sensor_ids.get(parts[3], "*") if model is not None else ""
         if model is None or wanted not in ("*", parts[4]):
-            self.events["ignored"] += 1
-            return []
-        msg = codec.decode(payload, encoding)
-        if not isinstance(msg, model):
-            raise InputRejected("unexpected_type", f"{type(msg).__name__} on {key}; expects {model.__name__}")
-        return self.on_input(key, msg)
+            return None
+        return (model,)
 
     def on_input(self, key: str, msg: Message) -> list[Output]:
-        """Per-key stamp check, then the reorder buffer; returns what the released messages produced."""
+        """One validated sample of the vehicle (the base decoded it once and checked its type against
+        :meth:`types_on`): per-key stamp check, then the reorder buffer; returns what the released messages produced."""
+        self._last_input_wall = time.monotonic()
         stamp = msg.header.stamp_ns
         last = self._last_stamp.get(key)
         if last is not None and stamp < last:

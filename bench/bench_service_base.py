@@ -1,0 +1,242 @@
+"""The service base's cost per message, against a bare Zenoh callback in the same run (issue 18, item 2).
+
+Real processes on one router (``fixstream router``): a publisher process puts ``BENCH_SERVICE_BASE_N`` msgpack
+``Depth`` messages (82 bytes, its own ``header.source`` and ``seq``) as fast as a blocking publisher may; one
+consumer process at a time takes them, and the benchmark process counts what the consumer republishes. Consumers:
+
+* ``bare callback`` (the anchor): one Python callback per sample that counts (the transport's cost into Python);
+* ``bare relay``: the callback counts and puts the payload back on an output key (the transport's cost both ways);
+* ``service base``: a :class:`~shared.service.Service` whose typed subscription takes ``Depth`` and whose core does
+  nothing: its handler returns the message as its output. Every message goes receive -> inbox -> unpack -> seq
+  and stamp checks -> validate -> dispatch -> stamp source/seq -> encode -> put, as in every fixstream service.
+
+Each consumer measures its own CPU time (``time.process_time``: every thread of the process, Zenoh's included) and
+wall time from its ``WARM``-th message to its last; CPU per message is the figure (the machine is shared, wall time
+is not). The in-process rows time the base's steps without Zenoh (``process`` of an offline service, and its parts)
+so the table says where the microseconds go.
+
+``python -m bench service_base`` (or ``make bench``).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import threading
+import time
+import timeit
+from collections.abc import Iterable
+from typing import Any, ClassVar
+
+import msgpack
+import zenoh
+
+from schemas import Depth, Header, Message
+from shared import codec
+from shared.service import Output, Service, Subscription
+from shared.session import open_session
+from shared.settings import ServiceSettings, ZenohSettings
+
+from .report import emit
+from .stack import REPO, router
+
+N = int(os.environ.get("BENCH_SERVICE_BASE_N", "200000"))
+#: messages before the measured span (imports, first allocations, the publisher's start)
+WARM = int(os.environ.get("BENCH_SERVICE_BASE_WARM", "20000"))
+IN_KEY = "fixstream/sensor/bench/depth/d0"
+OUT_KEY = "fixstream/fix/bench/echo"
+ENCODING = codec.encoding_of(Depth)
+
+
+class EchoService(Service):
+    """A service whose core does nothing: every Depth it takes is its output."""
+
+    name: ClassVar[str] = "bench_echo"
+
+    def __init__(self, settings: ServiceSettings, zenoh_settings: ZenohSettings | None = None) -> None:
+        super().__init__(settings, zenoh_settings)
+        self.n = 0
+        self.t0: tuple[float, float] | None = None
+        self.t1: tuple[float, float] | None = None
+
+    def subscriptions(self) -> list[Subscription]:
+        return [Subscription("fixstream/sensor/bench/depth/*", self.on_depth, accepts=(Depth,))]
+
+    def on_depth(self, key: str, msg: Message) -> Iterable[Output]:
+        self.n += 1
+        if self.n == WARM:
+            self.t0 = (time.process_time(), time.perf_counter())
+        elif self.n == N:
+            self.t1 = (time.process_time(), time.perf_counter())
+            self.stop()
+        return (Output(OUT_KEY, msg),)
+
+
+def _payload(seq: int) -> bytes:
+    return codec.encode(Depth(header=Header(stamp_ns=seq * 1_000_000, source="bench/p0", seq=seq), depth_m=35.5))
+
+
+# ----- the consumer processes --------------------------------------------------------------------------------------
+def serve(kind: str, endpoint: str) -> None:
+    """A consumer process: ``bare``, ``relay`` or ``service``; prints ``ready``, then ``cpu_s wall_s`` of the measured
+    span."""
+    zs = ZenohSettings(mode="client", connect=[endpoint])
+    if kind == "service":
+        svc = EchoService(ServiceSettings(instance="b0"), zs)
+        threading.Timer(1.0, lambda: print("ready", flush=True)).start()  # run() declares within the first second
+        svc.run()
+        assert svc.t0 is not None and svc.t1 is not None
+        print(f"{svc.t1[0] - svc.t0[0]} {svc.t1[1] - svc.t0[1]}", flush=True)
+        return
+    session = open_session(zs)
+    pub = session.declare_publisher(OUT_KEY, congestion_control=zenoh.CongestionControl.BLOCK)
+    enc = zenoh.Encoding(ENCODING)
+    done = threading.Event()
+    state: dict[str, Any] = {"n": 0}
+    relay = kind == "relay"
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        n = state["n"] = state["n"] + 1
+        if relay:
+            pub.put(sample.payload.to_bytes(), encoding=enc)
+        if n == WARM:
+            state["t0"] = (time.process_time(), time.perf_counter())
+        elif n == N:
+            state["t1"] = (time.process_time(), time.perf_counter())
+            done.set()
+
+    sub = session.declare_subscriber(IN_KEY, on_sample)
+    print("ready", flush=True)
+    done.wait()
+    (c0, w0), (c1, w1) = state["t0"], state["t1"]
+    print(f"{c1 - c0} {w1 - w0}", flush=True)
+    sub.undeclare()
+    session.close()
+
+
+def publish(endpoint: str) -> None:
+    """The publisher process: N Depth messages, blocking, as fast as the consumer takes them."""
+    session = open_session(ZenohSettings(mode="client", connect=[endpoint]))
+    pub = session.declare_publisher(IN_KEY, congestion_control=zenoh.CongestionControl.BLOCK)
+    enc = zenoh.Encoding(ENCODING)
+    msg = msgpack.unpackb(_payload(0))
+    header = msg["header"]
+    print("ready", flush=True)
+    sys.stdin.readline()
+    for seq in range(N):
+        header["seq"], header["stamp_ns"] = seq, seq * 1_000_000
+        pub.put(msgpack.packb(msg), encoding=enc)
+    print("done", flush=True)
+    sys.stdin.readline()
+    session.close()
+
+
+def _spawn(fn: str, *args: str) -> subprocess.Popen[str]:
+    code = f"import sys; from bench.bench_service_base import {fn}; {fn}(*sys.argv[1:])"
+    return subprocess.Popen(
+        [sys.executable, "-c", code, *args],
+        cwd=REPO,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "FIXSTREAM_LOG_LEVEL": "WARNING"},
+    )
+
+
+def run_consumer(kind: str, endpoint: str) -> dict[str, float]:
+    """One consumer against the publisher; its CPU and wall time per message over the measured span, and what the
+    benchmark process received of its outputs."""
+    got = [0]
+    session = open_session(ZenohSettings(mode="client", connect=[endpoint]))
+    counter = session.declare_subscriber(OUT_KEY, lambda s: got.__setitem__(0, got[0] + 1))
+    consumer = _spawn("serve", kind, endpoint)
+    publisher = _spawn("publish", endpoint)
+    try:
+        assert consumer.stdout is not None and publisher.stdout is not None and publisher.stdin is not None
+        assert consumer.stdout.readline().strip() == "ready"
+        assert publisher.stdout.readline().strip() == "ready"
+        time.sleep(0.5)  # both declared and known to the router
+        publisher.stdin.write("\n")
+        publisher.stdin.flush()
+        line = consumer.stdout.readline().split()
+        cpu_s, wall_s = float(line[0]), float(line[1])
+        publisher.stdin.write("\n")
+        publisher.stdin.flush()
+        publisher.wait(timeout=30)
+        consumer.wait(timeout=30)
+        deadline = time.monotonic() + 5
+        while kind != "bare" and got[0] < N and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        for p in (consumer, publisher):
+            if p.poll() is None:
+                p.kill()
+        counter.undeclare()
+        session.close()
+    span = N - WARM
+    return {
+        "cpu_us_per_msg": cpu_s / span * 1e6,
+        "msg_per_s": span / wall_s,
+        "outputs_received": got[0] if kind != "bare" else 0,
+    }
+
+
+# ----- in-process: where the microseconds go -------------------------------------------------------------------------
+def in_process() -> dict[str, float]:
+    """µs per call of the base's steps on one Depth payload, without Zenoh (best of 5 repeats)."""
+    svc = EchoService(ServiceSettings(instance="b0"))
+    svc._subs = svc.subscriptions()
+    payload = _payload(7)
+    obj = codec.unpack(payload)
+    msg = codec.validate(Depth, obj)
+    reps = 20_000
+
+    def best(fn: Any) -> float:
+        return min(timeit.repeat(fn, number=reps, repeat=5)) / reps * 1e6
+
+    seq = iter(range(10**9))
+    payloads = [_payload(i) for i in range(5 * reps + 10)]
+    it = iter(payloads)
+
+    def process() -> None:
+        svc.process(IN_KEY, next(it), ENCODING, rx_time_ns=0)
+        svc.outbox.clear()
+
+    return {
+        "unpack": best(lambda: codec.unpack(payload)),
+        "validate": best(lambda: codec.validate(Depth, obj)),
+        "encode_stamped": best(lambda: codec.encode_stamped(msg, "bench_echo/b0", next(seq))),
+        "process (offline: stamped copy into the outbox, no put)": best(process),
+    }
+
+
+def main() -> None:
+    rows: list[list[Any]] = []
+    figures: dict[str, Any] = {"n": N, "warm": WARM}
+    with router() as endpoint:
+        results = {k: run_consumer(k, endpoint) for k in ("bare", "relay", "service")}
+    anchor = results["bare"]["cpu_us_per_msg"]
+    labels = {
+        "bare": "bare Zenoh callback that counts (anchor)",
+        "relay": "bare callback that counts and puts the payload",
+        "service": "service base, no-op core (typed subscription, one output)",
+    }
+    for kind, r in results.items():
+        cpu = r["cpu_us_per_msg"]
+        rows.append([labels[kind], f"{cpu:.2f}", f"{cpu / anchor:.2f}", f"{cpu - anchor:.2f}", f"{r['msg_per_s']:,.0f}"])
+        figures[kind] = r
+    steps = in_process()
+    figures["in_process_us"] = steps
+    for step, us in steps.items():
+        rows.append([f"in process: {step}", f"{us:.2f}", "", "", ""])
+    emit(
+        "service_base",
+        ["path", "CPU µs/msg", "ratio to anchor", "over anchor µs", "msg/s (wall)"],
+        rows,
+        figures,
+    )
+
+
+if __name__ == "__main__":
+    main()
