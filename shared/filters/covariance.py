@@ -14,19 +14,22 @@ eigenvalues: ``D = V sqrt(max(w, 0))`` with ``P = V diag(w) V^T`` (digest 003 §
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
+#: what the toolkit accepts: any float array (float64 in practice; numpy types linalg results loosely)
+Floats = NDArray[np.floating[Any]]
 
 
-def symmetrize(P: FloatArray) -> FloatArray:
+def symmetrize(P: Floats) -> FloatArray:
     """(P + P^T) / 2 over the last two axes (one matrix or a batch)."""
-    return 0.5 * (P + np.swapaxes(P, -1, -2))
+    return cast(FloatArray, 0.5 * (P + np.swapaxes(P, -1, -2)))
 
 
-def is_positive_definite(P: FloatArray) -> bool:
+def is_positive_definite(P: Floats) -> bool:
     """True if P (n, n) is finite and every eigenvalue of its symmetric part is > 0."""
     return bool(np.isfinite(P).all() and np.all(np.linalg.eigvalsh(P) > 0.0))
 

@@ -18,6 +18,8 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from .covariance import Floats
+
 FloatArray = NDArray[np.float64]
 
 
@@ -32,7 +34,7 @@ def discretise(
     return a, sigma**2 * (1.0 - a * a)
 
 
-def discretise_sd(dt_s: float, tau_s: FloatArray, sigma: FloatArray) -> tuple[FloatArray, FloatArray]:
+def discretise_sd(dt_s: float, tau_s: Floats, sigma: Floats) -> tuple[FloatArray, FloatArray]:
     """Exact (a, sqrt(q)) for several states at once (tau_s, sigma arrays); dt_s < 0 is taken as 0."""
     a = np.exp(-max(dt_s, 0.0) / tau_s)
     return a, sigma * np.sqrt(np.maximum(1.0 - a * a, 0.0))

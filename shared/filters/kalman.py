@@ -27,12 +27,12 @@ shared by the batch or given per element. Matrix-vector products are ``A @ v`` f
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Literal
+from typing import Literal, cast
 
 import numpy as np
 from numpy.typing import NDArray
 
-from .covariance import symmetrize
+from .covariance import Floats, symmetrize
 
 FloatArray = NDArray[np.float64]
 #: residual(z, Hx) -> y; the default is z - Hx, an angle-aware one wraps some components
@@ -40,21 +40,18 @@ Residual = Callable[[FloatArray, FloatArray], FloatArray]
 Form = Literal["joseph", "standard"]
 
 
-def _T(A: FloatArray) -> FloatArray:
-    return np.swapaxes(A, -1, -2)
+def _T(A: Floats) -> FloatArray:
+    return cast(FloatArray, np.swapaxes(A, -1, -2))
 
 
-def matvec(A: FloatArray, v: FloatArray) -> FloatArray:
+def matvec(A: Floats, v: Floats) -> FloatArray:
     """A v for one vector (``A @ v``) or a batch (``einsum('...ij,...j->...i')``)."""
     if v.ndim == 1:
-        out: FloatArray = A @ v
-        return out
-    return np.einsum("...ij,...j->...i", A, v)
+        return cast(FloatArray, A @ v)
+    return cast(FloatArray, np.einsum("...ij,...j->...i", A, v))
 
 
-def predict(
-    x: FloatArray, P: FloatArray, F: FloatArray, Q: FloatArray, b: FloatArray | None = None
-) -> tuple[FloatArray, FloatArray]:
+def predict(x: Floats, P: Floats, F: Floats, Q: Floats, b: Floats | None = None) -> tuple[FloatArray, FloatArray]:
     """x <- F x (+ b), P <- sym(F P F^T + Q)."""
     x_new = matvec(F, x)
     if b is not None:
@@ -62,40 +59,39 @@ def predict(
     return x_new, symmetrize(F @ P @ _T(F) + Q)
 
 
-def innovation_covariance(P: FloatArray, H: FloatArray, R: FloatArray) -> FloatArray:
+def innovation_covariance(P: Floats, H: Floats, R: Floats) -> FloatArray:
     """S = sym(H P H^T + R)."""
     return symmetrize(H @ P @ _T(H) + R)
 
 
-def gain(P: FloatArray, H: FloatArray, S: FloatArray) -> FloatArray:
+def gain(P: Floats, H: Floats, S: Floats) -> FloatArray:
     """K = P H^T S^-1, computed as (S^-1 (P H^T)^T)^T (S symmetric)."""
-    KT: FloatArray = np.asarray(np.linalg.solve(S, _T(P @ _T(H))), dtype=np.float64)
-    return _T(KT)
+    return _T(np.linalg.solve(S, _T(P @ _T(H))))
 
 
-def joseph(P: FloatArray, K: FloatArray, H: FloatArray, R: FloatArray) -> FloatArray:
+def joseph(P: Floats, K: Floats, H: Floats, R: Floats) -> FloatArray:
     """P <- sym((I - K H) P (I - K H)^T + K R K^T): valid for any gain K."""
     IKH = np.eye(P.shape[-1]) - K @ H
     return symmetrize(IKH @ P @ _T(IKH) + K @ R @ _T(K))
 
 
-def standard(P: FloatArray, K: FloatArray, H: FloatArray) -> FloatArray:
+def standard(P: Floats, K: Floats, H: Floats) -> FloatArray:
     """P <- sym((I - K H) P): equal to :func:`joseph` for the optimal gain only."""
     return symmetrize((np.eye(P.shape[-1]) - K @ H) @ P)
 
 
 def update(
-    x: FloatArray,
-    P: FloatArray,
-    z: FloatArray,
-    H: FloatArray,
-    R: FloatArray,
+    x: Floats,
+    P: Floats,
+    z: Floats,
+    H: Floats,
+    R: Floats,
     residual: Residual | None = None,
     form: Form = "joseph",
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """One Kalman update; returns (x, P, y, S) (module docstring). ``residual`` replaces z - H x."""
     Hx = matvec(H, x)
-    y = z - Hx if residual is None else residual(z, Hx)
+    y = z - Hx if residual is None else residual(cast(FloatArray, z), Hx)
     S = innovation_covariance(P, H, R)
     K = gain(P, H, S)
     x_new = x + matvec(K, y)
@@ -103,12 +99,12 @@ def update(
     return x_new, P_new, y, S
 
 
-def nis(y: FloatArray, S: FloatArray) -> FloatArray:
+def nis(y: Floats, S: Floats) -> FloatArray:
     """NIS = y^T S^-1 y (also the squared Mahalanobis distance of y), batched over the leading axes."""
     return np.einsum("...i,...i->...", y, np.linalg.solve(S, y[..., None])[..., 0])
 
 
-def log_likelihood(y: FloatArray, S: FloatArray) -> FloatArray:
+def log_likelihood(y: Floats, S: Floats) -> FloatArray:
     """ln N(y; 0, S) = -1/2 (NIS + ln det S + m ln 2 pi), batched over the leading axes."""
     m = y.shape[-1]
     _, logdet = np.linalg.slogdet(S)

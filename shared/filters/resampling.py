@@ -17,29 +17,31 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from .covariance import Floats
+
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
 
 
-def _select(w: FloatArray, u: FloatArray) -> IntArray:
+def _select(w: Floats, u: FloatArray) -> IntArray:
     n = w.size
     cs = np.cumsum(w)
     cs[-1] = 1.0
     return np.minimum(np.searchsorted(cs, u, side="right"), n - 1)
 
 
-def systematic_resample(w: FloatArray, rng: np.random.Generator) -> IntArray:
+def systematic_resample(w: Floats, rng: np.random.Generator) -> IntArray:
     """Indices of the systematic resample of normalised weights w (N,); draws one ``rng.random()``."""
     n = w.size
     return _select(w, (rng.random() + np.arange(n)) / n)
 
 
-def stratified_resample(w: FloatArray, rng: np.random.Generator) -> IntArray:
+def stratified_resample(w: Floats, rng: np.random.Generator) -> IntArray:
     """Indices of the stratified resample of normalised weights w (N,); draws ``rng.random(N)``."""
     n = w.size
     return _select(w, (rng.random(n) + np.arange(n)) / n)
 
 
-def effective_sample_size(w: FloatArray) -> float:
+def effective_sample_size(w: Floats) -> float:
     """N_eff = 1 / sum w^2 of normalised weights."""
     return float(1.0 / np.sum(w * w))
