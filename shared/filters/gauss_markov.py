@@ -13,7 +13,6 @@ A stationary path starts from e_0 ~ N(0, sigma^2).
 from __future__ import annotations
 
 import math
-from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,10 +22,10 @@ from .covariance import Floats
 FloatArray = NDArray[np.float64]
 
 
-def discretise(
-    dt_s: float, tau_s: float, sigma: float, form: Literal["exact", "euler"] = "exact"
-) -> tuple[float, float]:
-    """(a, q) of one step of dt_s: the transition coefficient and the variance of the driving noise."""
+def discretise(dt_s: float, tau_s: float, sigma: float, form: str = "exact") -> tuple[float, float]:
+    """(a, q) of one step of dt_s: the transition coefficient and the variance of the driving noise.
+
+    ``form`` "euler" gives the Euler step, anything else the exact one."""
     if form == "euler":
         a = 1.0 - dt_s / tau_s
         return a, 2.0 * sigma**2 * dt_s / tau_s
