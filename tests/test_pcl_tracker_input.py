@@ -12,11 +12,12 @@ from schemas.pcl_tracker import PclScanReport, PclTrackReport
 from schemas.radar import BistaticConfigUpdate, BistaticPlot, BistaticScan
 from services.pcl_tracker.config import PclTrackerConfig
 from services.pcl_tracker.core import PclTracker
-from services.pcl_tracker.geometry import h_b, wrap_angle
+from services.pcl_tracker.geometry import h_b
 from services.pcl_tracker.metrics import ospa, run_metrics
 from services.pcl_tracker.models import cv_process_noise, cv_transition
 from services.pcl_tracker.simulation import scan_from_bistatic
-from services.pcl_tracker.ut import CholeskyStats, robust_cholesky
+from shared.filters.angles import wrap_pi
+from shared.filters.covariance import CholeskyStats, robust_cholesky
 from shared.service import InputRejected
 
 TX = np.array([8000.0, 0.0, 300.0])
@@ -33,7 +34,7 @@ def truth_state(t: float) -> np.ndarray:
 
 def noisy_z(rng: np.random.Generator, t: float) -> np.ndarray:
     z = h_b(truth_state(t), TX) + rng.standard_normal(4) * SIG
-    z[1] = wrap_angle(z[1])
+    z[1] = wrap_pi(z[1])
     return z
 
 

@@ -21,12 +21,12 @@ from services.pcl_tracker.geometry import (
     h_a6,
     h_a6_quotient,
     h_b,
-    wrap_angle,
 )
 from services.pcl_tracker.initiation import bistatic_to_cartesian, ring_ellipse_test, two_plot_bistatic_estimate
 from services.pcl_tracker.models import cv_process_noise, cv_transition
 from services.pcl_tracker.simulation import scan_from_bistatic
-from services.pcl_tracker.ut import sigma_points, unscented_transform
+from shared.filters.angles import wrap_pi
+from shared.filters.unscented import sigma_points, unscented_transform
 
 TX = np.array([8000.0, 0.0, 300.0])
 D2R = math.pi / 180.0
@@ -161,14 +161,14 @@ def test_u6_ut_azimuth_wrap_is_rotation_invariant() -> None:
     T[:3, :3] = T[3:, 3:] = Rz
     a = unscented_transform(x[None], P[None], lambda s: h_b(s, tx), az_index=1)
     b = unscented_transform((T @ x)[None], (T @ P @ T.T)[None], lambda s: h_b(s, Rz @ tx), az_index=1)
-    d_az = float(wrap_angle(b.mean[0, 1] - a.mean[0, 1] - math.pi / 2))
+    d_az = float(wrap_pi(b.mean[0, 1] - a.mean[0, 1] - math.pi / 2))
     assert abs(d_az) < 1e-9
     for i in (0, 2, 3):
         assert b.mean[0, i] == pytest.approx(a.mean[0, i], rel=1e-9, abs=1e-9)
     np.testing.assert_allclose(b.cov[0], a.cov[0], rtol=1e-9, atol=1e-9 * np.abs(a.cov[0]).max())
     # the case really straddles +-180 deg: without wrapping the mean is far off (digest: about -150 deg)
     naive = unscented_transform(x[None], P[None], lambda s: h_b(s, tx), az_index=None)
-    assert abs(math.degrees(float(wrap_angle(naive.mean[0, 1] - a.mean[0, 1])))) > 10.0
+    assert abs(math.degrees(float(wrap_pi(naive.mean[0, 1] - a.mean[0, 1])))) > 10.0
     assert math.degrees(math.sqrt(a.cov[0, 1, 1])) < 10.0 < math.degrees(math.sqrt(naive.cov[0, 1, 1]))
 
 
@@ -234,7 +234,7 @@ def scan(k: int, rows: list[np.ndarray] | np.ndarray, ids: list[str] | None = No
 
 def noisy_z(rng: np.random.Generator, t: float) -> np.ndarray:
     z = true_z(t) + rng.standard_normal(4) * SIG
-    z[1] = wrap_angle(z[1])
+    z[1] = wrap_pi(z[1])
     return z
 
 

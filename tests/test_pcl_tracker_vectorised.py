@@ -20,10 +20,10 @@ from schemas.radar import BistaticPlot
 from services.pcl_tracker.association import assign_gnn, assign_nn, assign_pairs, gate_matrix, gate_pairs
 from services.pcl_tracker.config import PclTrackerConfig
 from services.pcl_tracker.filter import bistatic_image
-from services.pcl_tracker.geometry import wrap_angle
 from services.pcl_tracker.initiation import ring_ellipse_test, ring_gate_pairs
 from services.pcl_tracker.models import plot_covariance
 from services.pcl_tracker.plots import normalise_plots
+from shared.filters.angles import wrap_pi
 
 TX = np.array([8000.0, 0.0, 300.0])
 G4 = float(chi2.ppf(0.99, 4))
@@ -51,7 +51,7 @@ def scene(rng: np.random.Generator, n_tracks: int, n_clutter: int) -> tuple[np.n
     lo, hi = np.array([0.0, -math.pi, 0.0, -450.0]), np.array([60_000.0, math.pi, 0.5, 450.0])
     clutter = lo + rng.random((n_clutter, 4)) * (hi - lo)
     z = np.vstack([z_true, clutter])
-    z[:, 1] = wrap_angle(z[:, 1])
+    z[:, 1] = wrap_pi(z[:, 1])
     return pred.mean, pred.cov, z, plot_covariance(sig)
 
 
@@ -60,7 +60,7 @@ def test_sparse_gating_equals_the_dense_gate(seed: int) -> None:
     rng = np.random.default_rng(seed)
     zp, Rp, z, Rz = scene(rng, 60, 400)
     z[60:90] = z[:30] + rng.normal(0, 0.5, (30, 4)) * np.sqrt(np.diagonal(Rz[:30], axis1=1, axis2=2))  # twins
-    z[:, 1] = wrap_angle(z[:, 1])
+    z[:, 1] = wrap_pi(z[:, 1])
     d2, logdet = gate_matrix(zp, Rp, z, Rz)
     gp = gate_pairs(zp, Rp, z, Rz, G4)
     ti, pj = np.nonzero(d2 <= G4)
@@ -79,7 +79,7 @@ def test_component_assignment_equals_the_dense_assignment(seed: int, method: str
     rng = np.random.default_rng(100 + seed)
     zp, Rp, z, Rz = scene(rng, 80, 300)
     z[80:120] = z[:40] + rng.normal(0, 0.3, (40, 4)) * np.sqrt(np.diagonal(Rz[:40], axis1=1, axis2=2))  # contention
-    z[:, 1] = wrap_angle(z[:, 1])
+    z[:, 1] = wrap_pi(z[:, 1])
     # crossing targets: tracks 60-79 predicted next to tracks 0-19, so they compete for the same plots
     zp[60:80] = zp[:20] + rng.normal(0, 0.4, (20, 4)) * np.sqrt(np.diagonal(Rp[:20], axis1=1, axis2=2))
     Rp[60:80] = Rp[:20]

@@ -43,14 +43,14 @@ def _feed(nav: TerrainNavigator, msgs: list[Message]) -> tuple[list[Message], Co
 
 
 def _snapshot(nav: TerrainNavigator) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
-    return nav.bank.S.copy(), nav.bank.P.copy(), nav.F.copy(), nav.N_valid, nav.total_meas
+    return nav.bank.x.copy(), nav.bank.P.copy(), nav.F.copy(), nav.N_valid, nav.total_meas
 
 
 def _assert_state_valid(nav: TerrainNavigator) -> None:
     P = nav.bank.P
     assert np.allclose(P, P.T, rtol=0, atol=1e-12 * np.abs(P).max())
     assert np.all(np.linalg.eigvalsh(P) > 0)
-    assert np.all(np.isfinite(nav.bank.S)) and np.all(np.isfinite(nav.F))
+    assert np.all(np.isfinite(nav.bank.x)) and np.all(np.isfinite(nav.F))
 
 
 def _hdr(t: float) -> Header:
@@ -189,7 +189,7 @@ def test_nav_reset_clears_the_estimator_but_keeps_the_map(flight: SimulatedFligh
     assert len(out) == 1 and isinstance(out[0], TerrainVerdict) and out[0].state == "RESET"
     assert out[0].detail == "INS reset by operator"
     assert nav.N_valid == 0 and nav.total_meas == 0 and not nav.window.measq and not nav.group
-    assert np.all(nav.bank.S == 0) and np.array_equal(nav.bank.P, nav.bank.P0) and not nav.argmin_hist
+    assert np.all(nav.bank.x == 0) and np.array_equal(nav.bank.P, nav.bank.P0) and not nav.argmin_hist
     out, _ = _feed(nav, msgs[900:])
     verdicts = [m for m in out if isinstance(m, TerrainVerdict)]
     assert verdicts[0].n_measurements == 4 and verdicts[0].n_valid == 3  # first residual excluded again
@@ -239,7 +239,7 @@ def test_at11_grouping_gives_identical_states_and_f(flight: SimulatedFlight) -> 
     snaps = []
     for m in meas:
         nav1.push_measurement(dataclasses.replace(m))
-        snaps.append((nav1.bank.S.copy(), nav1.F.copy(), nav1.N_valid))
+        snaps.append((nav1.bank.x.copy(), nav1.F.copy(), nav1.N_valid))
     assert nav1.n_evaluations == 128
     for N_p in (2, 4, 8):
         nav = TerrainNavigator(ref, TerrainNavConfig(N_p=N_p))
@@ -248,10 +248,10 @@ def test_at11_grouping_gives_identical_states_and_f(flight: SimulatedFlight) -> 
             if nav.push_measurement(dataclasses.replace(m)):
                 evaluated_at.append(k + 1)
                 S1, F1, n1 = snaps[k]
-                np.testing.assert_allclose(nav.bank.S, S1, rtol=0, atol=1e-12 * np.abs(S1).max())
+                np.testing.assert_allclose(nav.bank.x, S1, rtol=0, atol=1e-12 * np.abs(S1).max())
                 np.testing.assert_allclose(nav.F, F1, rtol=0, atol=1e-12 * np.abs(F1).max())
                 assert nav.N_valid == n1
-                assert np.array_equal(nav.bank.S, S1) and np.array_equal(nav.F, F1)  # in fact bit-identical
+                assert np.array_equal(nav.bank.x, S1) and np.array_equal(nav.F, F1)  # in fact bit-identical
         assert evaluated_at == list(range(N_p, 129, N_p))  # checks run exactly every N_p measurements
 
 

@@ -87,7 +87,7 @@ def test_kalman_bank_equals_one_filterpy_filter_per_hypothesis() -> None:
             kf.update(np.array([[patch.flat[idx] + c]]), R=R)
             assert nu.flat[idx] == pytest.approx(float(kf.y[0, 0]), rel=1e-12, abs=1e-9)
         states = np.stack([kf.x[:, 0] for kf in filters], axis=1).reshape(3, *shape)
-        np.testing.assert_allclose(bank.S, states, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(bank.x, states, rtol=1e-9, atol=1e-9)
         np.testing.assert_allclose(bank.P, filters[0].P, rtol=1e-9, atol=1e-12)
         assert np.allclose(bank.P, bank.P.T) and np.all(np.linalg.eigvalsh(bank.P) > 0)
 

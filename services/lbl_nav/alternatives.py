@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from shared.filters import kalman
+
 from .config import LblNavConfig
 from .filter import BufferedEpoch, HypothesisBank, HypothesisFilter, StepReport
 from .models import AUG, F64, DrInterval, MotionModel, Row
@@ -62,9 +64,7 @@ class TwoFilterScheme:
         S = H @ PHt + Rb
         K = PHt @ np.linalg.inv(S)
         X = h.X + K @ (zb - h.X[COPY_OF_X0])
-        IKH = np.eye(11) - K @ H
-        P = IKH @ h.P @ IKH.T + K @ Rb @ K.T
-        self.X_fused, self.P_fused = X[AUG:], 0.5 * (P[AUG:, AUG:] + P[AUG:, AUG:].T)
+        self.X_fused, self.P_fused = X[AUG:], kalman.joseph(h.P, K, H, Rb)[AUG:, AUG:]
 
     def launch_steps(self) -> None:
         self.backward.launch_steps()

@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from schemas import BeaconRange, BeaconTable, Current, Heading, SpeedLog
+from shared.filters import kalman
 
 from .models import ErrorModel
 from .simulation import ScenarioSpec, SimRun
@@ -230,10 +231,8 @@ def _update(
     R = noise.sigma_delta_m**2 * np.ones((m, m)) + noise.sigma_v_m**2 * np.eye(m)
     S = H @ P @ H.T + R
     K = np.linalg.solve(S, H @ P).T
-    IKH = np.eye(6) - K @ H
-    P = IKH @ P @ IKH.T + K @ R @ K.T
     _, logdet = np.linalg.slogdet(S)
-    return X + K @ nu, 0.5 * (P + P.T), float(nu @ np.linalg.solve(S, nu)), float(logdet)
+    return X + K @ nu, kalman.joseph(P, K, H, R), float(nu @ np.linalg.solve(S, nu)), float(logdet)
 
 
 # ---- what the scenario tests use ------------------------------------------------------------------------------

@@ -47,8 +47,10 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.linalg import cho_solve_banded, cholesky_banded
 
+from shared.filters import gauss_markov
+
 from .config import LblNavConfig
-from .models import DrIncrement, ErrorModel, markov
+from .models import DrIncrement, ErrorModel
 
 F64 = NDArray[np.float64]
 #: floor of sigma_w (m) so that a log without noise still gives a finite weight
@@ -160,8 +162,8 @@ class Record:
         w2 = pri.sigma_dV_mps**2 * (self.dt * self.dt if pri.sigma_w_linear else self.dt)
         self.sw = np.maximum(np.sqrt(w2) * np.array([e.sigma_w_scale for e in epochs]), SIGMA_W_FLOOR_M)
         self.layout = _Layout(n, pri.sigma_dK_rad > 0.0, pri.sigma_dU_mps > 0.0)
-        aK = [markov(dt, pri.tau_dK_s, pri.sigma_dK_rad, pri.markov_form) for dt in self.dt[1:]]
-        aU = [markov(dt, pri.tau_dU_s, pri.sigma_dU_mps, pri.markov_form) for dt in self.dt[1:]]
+        aK = [gauss_markov.discretise(dt, pri.tau_dK_s, pri.sigma_dK_rad, pri.markov_form) for dt in self.dt[1:]]
+        aU = [gauss_markov.discretise(dt, pri.tau_dU_s, pri.sigma_dU_mps, pri.markov_form) for dt in self.dt[1:]]
         self.aK = np.array([a for a, _ in aK])
         self.sqK = np.sqrt(np.maximum(np.array([q for _, q in aK]), 1e-30))
         self.aU = np.array([a for a, _ in aU])

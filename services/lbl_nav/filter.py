@@ -15,6 +15,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
+from shared.filters import kalman
+from shared.filters.covariance import symmetrize
+
 from .config import LblNavConfig
 from .decision import ExactCheck, ExactDecision, evidence_epoch, start_of
 from .models import AUG, COPY_IDX, F64, IDC, IDK, IX, IY, SDK, DrInterval, MotionModel, Row, noise_cov
@@ -81,9 +84,7 @@ class HypothesisFilter:
 
     # ---- prediction --------------------------------------------------------------------------------------------
     def predict_forward(self, Phi: F64, b: F64, Q: F64) -> None:
-        self.X = Phi @ self.X + b
-        self.P = Phi @ self.P @ Phi.T + Q
-        self.P = 0.5 * (self.P + self.P.T)
+        self.X, self.P = kalman.predict(self.X, self.P, Phi, Q, b)
 
     def predict_backward(self, Phib: F64, bb: F64, Qb: F64) -> None:
         """Step of kind 1: the buffered copy goes back s+1 -> s, X_i untouched (identity, no noise)."""
@@ -93,7 +94,7 @@ class HypothesisFilter:
         P[:AUG, :] = top
         P[:, :AUG] = P[:, :AUG] @ Phib.T
         P[:AUG, :AUG] += Qb
-        self.P = 0.5 * (P + P.T)
+        self.P = symmetrize(P)
 
     def predict_joint(self, Phib: F64, bb: F64, Qb: F64, Phi: F64, b: F64, Q: F64) -> None:
         """Step of kind 2: copy backwards and X_i forwards; block-diagonal transition."""
@@ -104,8 +105,7 @@ class HypothesisFilter:
         Qa[:AUG, :AUG] = Qb
         Qa[AUG:, AUG:] = Q
         self.X = np.concatenate([Phib @ self.X[:AUG] + bb, Phi @ self.X[AUG:] + b])
-        self.P = F @ self.P @ F.T + Qa
-        self.P = 0.5 * (self.P + self.P.T)
+        self.P = symmetrize(F @ self.P @ F.T + Qa)
 
     # ---- update ------------------------------------------------------------------------------------------------
     def innovations(self, rows: list[Row], second_order: bool = False) -> tuple[F64, F64, F64]:
@@ -174,16 +174,14 @@ class HypothesisFilter:
             a = float(nu[0]) ** 2 / s
             logdet = math.log(s)
         else:
-            S = 0.5 * (S + S.T)
+            S = symmetrize(S)
             L = np.linalg.cholesky(S)
             Sinv = np.linalg.inv(S)
             K = PHt @ Sinv
             a = float(nu @ Sinv @ nu)
             logdet = 2.0 * float(np.sum(np.log(np.diag(L))))
         self.X = self.X + K @ nu
-        IKH = _eye(P.shape[0]) - K @ H
-        Pn = IKH @ P @ IKH.T + K @ R @ K.T
-        self.P = 0.5 * (Pn + Pn.T)
+        self.P = kalman.joseph(P, K, H, R)
         self.A += a
         self.lnB += logdet
         self._log_rows(rows)
@@ -200,8 +198,7 @@ class HypothesisFilter:
         K = PHt / s
         self.X = self.X + K * nu
         IKH = _eye(P.shape[0]) - K[:, None] * h
-        Pn = IKH @ P @ IKH.T + (K * r)[:, None] * K
-        self.P = 0.5 * (Pn + Pn.T)
+        self.P = symmetrize(IKH @ P @ IKH.T + (K * r)[:, None] * K)
         self.A += nu**2 / s
         self.lnB += math.log(s)
         self._log_rows(rows)
@@ -493,6 +490,6 @@ def merge(h1: HypothesisFilter, h2: HypothesisFilter, log_ratio: float) -> Hypot
     X = p1 * h1.X + p2 * h2.X
     d1, d2 = h1.X - X, h2.X - X
     P = p1 * (h1.P + np.outer(d1, d1)) + p2 * (h2.P + np.outer(d2, d2))
-    out = HypothesisFilter(1, X, 0.5 * (P + P.T))
+    out = HypothesisFilter(1, X, symmetrize(P))
     out.n_rows, out.crc, out.row_log = h1.n_rows, h1.crc, deque(h1.row_log, maxlen=ROW_LOG_MAX)
     return out

@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
+from shared.filters.covariance import symmetrize
+
 from . import geometry as geo
 from .config import LblNavConfig
 from .models import F64, RangeRow, Row
@@ -108,7 +110,7 @@ def chi_estimate(x0: float, y0: float, rows: Sequence[Row], cfg: LblNavConfig) -
     info = H.T @ Ri @ H
     info[2, 2] += 1.0 / cfg.sigma_dc_mps**2
     P = np.linalg.inv(info)
-    P = 0.5 * (P + P.T)
+    P = symmetrize(P)
     chi = np.array([x0, y0, 0.0]) + P @ H.T @ Ri @ r
     # fit of Y_0 at chi_hat (linearised) and the prior term on dc
     res = r - H @ (chi - np.array([x0, y0, 0.0]))

@@ -14,6 +14,8 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from shared.filters import gauss_markov
+
 from .config import LblNavConfig
 
 F64 = NDArray[np.float64]
@@ -71,15 +73,6 @@ class DrInterval(DrIncrement):
     gap_s: float = 0.0
 
 
-def markov(dt_s: float, tau_s: float, sigma: float, form: str) -> tuple[float, float]:
-    """[R] AR(1) step of a stationary first-order Markov process: (a, variance of the driving noise)."""
-    if form == "euler":
-        a = 1.0 - dt_s / tau_s
-        return a, 2.0 * sigma**2 * dt_s / tau_s
-    a = math.exp(-dt_s / tau_s)
-    return a, sigma**2 * (1.0 - a * a)
-
-
 class MotionModel:
     """Forward (2) and backward (U6) transition matrices for one DR interval."""
 
@@ -91,8 +84,8 @@ class MotionModel:
         c = self._cache.get(dt)
         if c is None:
             cfg = self.cfg
-            aK, qK = markov(dt, cfg.tau_dK_s, cfg.sigma_dK_rad, cfg.markov_form)
-            aU, qU = markov(dt, cfg.tau_dU_s, cfg.sigma_dU_mps, cfg.markov_form)
+            aK, qK = gauss_markov.discretise(dt, cfg.tau_dK_s, cfg.sigma_dK_rad, cfg.markov_form)
+            aU, qU = gauss_markov.discretise(dt, cfg.tau_dU_s, cfg.sigma_dU_mps, cfg.markov_form)
             # [R] sigma_w = sigma_dV * sqrt(dt * 1 s); the printed form sigma_dV * dt is the same at dt = 1 s
             w2 = cfg.sigma_dV_mps**2 * (dt if cfg.sigma_w_form == "sqrt" else dt * dt)
             c = (aK, qK, aU, qU, w2)

@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from schemas import Beacon, BeaconRange, BeaconTable, Current, Depth, Header, Heading, Message, SpeedLog, Truth
+from shared.filters import gauss_markov
 
 F64 = NDArray[np.float64]
 NS = 1_000_000_000
@@ -126,18 +127,6 @@ class SimRun:
         ]
 
 
-def _markov(rng: np.random.Generator, n: int, sigma: float, tau_s: float, dt_s: float) -> F64:
-    """Stationary AR(1) path with a = exp(-dt/tau) started from its stationary law."""
-    a = math.exp(-dt_s / tau_s)
-    w = rng.standard_normal(n)
-    out = np.empty(n)
-    out[0] = sigma * w[0]
-    q = sigma * math.sqrt(1.0 - a * a)
-    for i in range(1, n):
-        out[i] = a * out[i - 1] + q * w[i]
-    return out
-
-
 def simulate(
     spec: ScenarioSpec,
     rng: np.random.Generator,
@@ -155,9 +144,9 @@ def simulate(
     nb = len(spec.beacons)
     # draws, in a fixed order
     dc = spec.sigma_dc_mps * float(rng.standard_normal())
-    dK = _markov(rng, n, math.radians(spec.sigma_dK_deg), spec.tau_dK_s, dt)
-    dUN = _markov(rng, n, spec.sigma_dU_mps, spec.tau_dU_s, dt)
-    dUE = _markov(rng, n, spec.sigma_dU_mps, spec.tau_dU_s, dt)
+    dK = gauss_markov.path(rng, n, math.radians(spec.sigma_dK_deg), spec.tau_dK_s, dt)
+    dUN = gauss_markov.path(rng, n, spec.sigma_dU_mps, spec.tau_dU_s, dt)
+    dUE = gauss_markov.path(rng, n, spec.sigma_dU_mps, spec.tau_dU_s, dt)
     log_noise = spec.sigma_dV_mps / math.sqrt(dt) * rng.standard_normal((n, 2))
     delta = spec.sigma_delta_m * rng.standard_normal(n)
     v = spec.sigma_v_m * rng.standard_normal((n, nb))

@@ -15,9 +15,11 @@ from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from .filter import innovation, mahalanobis2
+from shared.filters import kalman
+from shared.filters.covariance import symmetrize
+
+from .filter import innovation
 from .geometry import BoolArray, FloatArray
-from .ut import symmetrize
 
 IntArray = NDArray[np.int64]
 
@@ -34,7 +36,7 @@ def gate_matrix(
         return np.zeros((T, P)), np.zeros((T, P))
     nu = innovation(z[None, :, :], z_pred[:, None, :])
     S = symmetrize(R_pred[:, None, :, :] + R_plot[None, :, :, :])
-    d2 = mahalanobis2(nu, S)
+    d2 = kalman.nis(nu, S)
     _, logdet = np.linalg.slogdet(S)
     return d2, logdet
 
@@ -128,7 +130,7 @@ def gate_pairs(z_pred: FloatArray, R_pred: FloatArray, z: FloatArray, R_plot: Fl
     if ti.size == 0:
         return GatedPairs.empty()
     S = symmetrize(R_pred[ti] + R_plot[pj])
-    d2 = mahalanobis2(nu, S)
+    d2 = kalman.nis(nu, S)
     inside = d2 <= gamma
     ti, pj, d2, S = ti[inside], pj[inside], d2[inside], S[inside]
     _, logdet = np.linalg.slogdet(S) if ti.size else (None, np.zeros(0))

@@ -23,6 +23,9 @@ from schemas.base import Header
 from schemas.pcl_tracker import PclScanReport, PclTrackReport
 from schemas.radar import BistaticConfigUpdate, BistaticScan
 from shared.errors import InputRejected
+from shared.filters import kalman
+from shared.filters.covariance import CholeskyStats, symmetrize
+from shared.filters.unscented import TransformResult
 
 from .association import GatedPairs, assign_pairs, gate_pairs, gate_pairs_models
 from .config import PclTrackerConfig
@@ -35,7 +38,6 @@ from .filter import (
     convert_plots,
     innovation,
     kf_position_update,
-    mahalanobis2,
     predict,
     ukf_bistatic_update,
 )
@@ -44,7 +46,6 @@ from .imm import bistatic_loglik, combine, combine_measurements, imm_position_up
 from .initiation import bistatic_to_cartesian, ring_gate_pairs, two_plot_bistatic_estimate, ukf_only_init
 from .models import plot_covariance
 from .plots import NormalisedPlots, normalise_plots
-from .ut import CholeskyStats, TransformResult, symmetrize
 
 _DEG = 180.0 / math.pi
 _BISTATIC_UNITS = np.array([1.0, _DEG, _DEG, 1.0])
@@ -358,7 +359,7 @@ class PclTracker:
             ti = np.array([i for i, _ in pairs], dtype=np.int64)
             pj = np.array([c for _, c in pairs], dtype=np.int64)
             nu = innovation(plots.z[pj], preds.mean[ti])
-            d2_mix = mahalanobis2(nu, symmetrize(preds.cov[ti] + R_plot[pj]))
+            d2_mix = kalman.nis(nu, symmetrize(preds.cov[ti] + R_plot[pj]))
             pair_d2.update({p: float(v) for p, v in zip(pairs, d2_mix.tolist(), strict=True)})
 
         # the plots that may start tracks (§5.5 step 5: in no gate, convertible); in a clutter burst either none

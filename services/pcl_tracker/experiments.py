@@ -13,6 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from shared.filters import kalman
+from shared.filters.unscented import TransformResult
+
 from .config import PclTrackerConfig
 from .filter import (
     bistatic_image,
@@ -22,7 +25,6 @@ from .filter import (
     convert_plots,
     innovation,
     kf_position_update,
-    mahalanobis2,
     predict,
     ukf_bistatic_update,
 )
@@ -30,7 +32,6 @@ from .geometry import BoolArray, FloatArray
 from .imm import bistatic_loglik, combine, combine_measurements, imm_position_update, imm_predict
 from .initiation import bistatic_to_cartesian, two_plot_bistatic_estimate, ukf_only_init
 from .models import plot_covariance
-from .ut import TransformResult
 
 
 @dataclass
@@ -138,12 +139,12 @@ def run_single_target(
             if pred is None or idx.size == 0:
                 continue
             nu = innovation(z[idx, k], pred.mean)
-            d2 = mahalanobis2(nu, pred.cov + R_plot[idx])
+            d2 = kalman.nis(nu, pred.cov + R_plot[idx])
             nis[idx, k] = d2
             if gating and imm and pred is pred_u:
                 # the core's IMM gate: the union of the models' gates
                 nu_m = innovation(z[idx, k][:, None, :], zm)
-                in_gate[idx, k] = (mahalanobis2(nu_m, Sm + R_plot[idx][:, None]) <= gamma4).any(axis=1)
+                in_gate[idx, k] = (kalman.nis(nu_m, Sm + R_plot[idx][:, None]) <= gamma4).any(axis=1)
             elif gating:
                 in_gate[idx, k] = d2 <= gamma4
         # update runs whose plot is in the gate

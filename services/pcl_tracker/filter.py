@@ -12,7 +12,12 @@ from functools import partial
 
 import numpy as np
 
-from .geometry import AZ_INDEX, BoolArray, FloatArray, h_a3, h_b, wrap_angle
+from shared.filters import kalman
+from shared.filters.angles import wrap_pi
+from shared.filters.covariance import CholeskyStats, symmetrize
+from shared.filters.unscented import TransformResult, moments_from_points, sigma_points, transform
+
+from .geometry import AZ_INDEX, BoolArray, FloatArray, h_a3, h_b
 from .models import (
     H_BKF,
     H_POS,
@@ -22,16 +27,11 @@ from .models import (
     cv_transition,
     plot_covariance,
 )
-from .ut import CholeskyStats, TransformResult, moments_from_points, sigma_points, symmetrize, transform
 
 
 def predict(x: FloatArray, P: FloatArray, tau: FloatArray, q: float) -> tuple[FloatArray, FloatArray]:
     """x(k|k-1) = F x, P(k|k-1) = F P F^T + Q for each track (tau in s)."""
-    F = cv_transition(tau)
-    Q = cv_process_noise(tau, q)
-    x_new = np.einsum("bij,bj->bi", F, x)
-    P_new = symmetrize(F @ P @ np.swapaxes(F, -1, -2) + Q)
-    return x_new, P_new
+    return kalman.predict(x, P, cv_transition(tau), cv_process_noise(tau, q))
 
 
 def _h_b_map(tx: FloatArray, pts: FloatArray) -> FloatArray:
@@ -88,16 +88,8 @@ def kf_position_update(
     x: FloatArray, P: FloatArray, y: FloatArray, R: FloatArray
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Linear KF update with H = [I_3 0], Joseph form, symmetrised. Returns (x, P, NEES-free NIS_cart)."""
-    H = H_POS
-    S = symmetrize(H @ P @ H.T + R)
-    PHt = P @ H.T
-    K = np.swapaxes(np.linalg.solve(S, np.swapaxes(PHt, -1, -2)), -1, -2)  # P H^T S^-1
-    nu = y - x[:, :3]
-    x_new = x + np.einsum("bij,bj->bi", K, nu)
-    IKH = np.eye(6) - K @ H
-    P_new = symmetrize(IKH @ P @ np.swapaxes(IKH, -1, -2) + K @ R @ np.swapaxes(K, -1, -2))
-    nis = np.einsum("bi,bi->b", nu, np.linalg.solve(S, nu[..., None])[..., 0])
-    return x_new, P_new, nis
+    x_new, P_new, nu, S = kalman.update(x, P, y, H_POS, R)
+    return x_new, P_new, kalman.nis(nu, S)
 
 
 def ukf_bistatic_update(
@@ -115,13 +107,8 @@ def ukf_bistatic_update(
 def innovation(z: FloatArray, z_pred: FloatArray) -> FloatArray:
     """nu = z - z_pred with the azimuth component wrapped to (-pi, pi]."""
     nu = z - z_pred
-    nu[..., AZ_INDEX] = wrap_angle(nu[..., AZ_INDEX])
+    nu[..., AZ_INDEX] = wrap_pi(nu[..., AZ_INDEX])
     return nu
-
-
-def mahalanobis2(nu: FloatArray, S: FloatArray) -> FloatArray:
-    """d^2 = nu^T S^-1 nu, batched over the leading axes."""
-    return np.einsum("...i,...i->...", nu, np.linalg.solve(S, nu[..., None])[..., 0])
 
 
 # ----- linear bistatic KF (comparison variant, digest §2.5) ------------------------------------------------
@@ -130,29 +117,21 @@ def mahalanobis2(nu: FloatArray, S: FloatArray) -> FloatArray:
 def bkf_predict(
     xb: FloatArray, Pb: FloatArray, tau: FloatArray, q_r: float, q_ang: float
 ) -> tuple[FloatArray, FloatArray]:
-    F = bkf_transition(tau)
-    Q = bkf_process_noise(tau, q_r, q_ang)
-    x_new = np.einsum("bij,bj->bi", F, xb)
-    x_new[:, 2] = wrap_angle(x_new[:, 2])
-    return x_new, symmetrize(F @ Pb @ np.swapaxes(F, -1, -2) + Q)
+    x_new, P_new = kalman.predict(xb, Pb, bkf_transition(tau), bkf_process_noise(tau, q_r, q_ang))
+    x_new[:, 2] = wrap_pi(x_new[:, 2])
+    return x_new, P_new
 
 
 def bkf_measurement(xb: FloatArray, Pb: FloatArray) -> TransformResult:
     """Linear predicted measurement H_b x_b, H_b P_b H_b^T (and cross-covariance P_b H_b^T)."""
     z = xb @ H_BKF.T
-    z[:, AZ_INDEX] = wrap_angle(z[:, AZ_INDEX])
+    z[:, AZ_INDEX] = wrap_pi(z[:, AZ_INDEX])
     cross = Pb @ H_BKF.T
     return TransformResult(z, symmetrize(H_BKF @ cross), cross)
 
 
 def bkf_update(xb: FloatArray, Pb: FloatArray, z: FloatArray, R_plot: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Linear KF update of the bistatic state with the 4-D plot, Joseph form."""
-    H = H_BKF
-    S = symmetrize(H @ Pb @ H.T + R_plot)
-    K = np.swapaxes(np.linalg.solve(S, np.swapaxes(Pb @ H.T, -1, -2)), -1, -2)
-    nu = innovation(z, xb @ H.T)
-    x_new = xb + np.einsum("bij,bj->bi", K, nu)
-    x_new[:, 2] = wrap_angle(x_new[:, 2])
-    IKH = np.eye(6) - K @ H
-    P_new = symmetrize(IKH @ Pb @ np.swapaxes(IKH, -1, -2) + K @ R_plot @ np.swapaxes(K, -1, -2))
+    """Linear KF update of the bistatic state with the 4-D plot (azimuth innovation wrapped), Joseph form."""
+    x_new, P_new, _, _ = kalman.update(xb, Pb, z, H_BKF, R_plot, residual=innovation)
+    x_new[:, 2] = wrap_pi(x_new[:, 2])
     return x_new, P_new

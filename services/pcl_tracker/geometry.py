@@ -28,12 +28,6 @@ D_MIN = 1e-6
 RB_CLAMP_M = 1e-3
 
 
-def wrap_angle(a: ArrayLike) -> FloatArray:
-    """Wrap angles (rad) to (-pi, pi]."""
-    arr = np.asarray(a, dtype=np.float64)
-    return np.pi - np.mod(np.pi - arr, 2.0 * np.pi)
-
-
 def baseline(tx: ArrayLike) -> float:
     """Baseline L = |t| (m)."""
     return float(np.linalg.norm(np.asarray(tx, dtype=np.float64)))

@@ -3,7 +3,7 @@
 Not in the paper (digest 003 uses one CV model, §1.6); added for manoeuvring targets (issue 15). The
 paper's measurement step is kept: every model is updated with the same UT-converted plot
 (y_a, R_a) and H = [I_3 0] (digest §2.6), so each model-matched filter is the linear KF of
-:func:`.filter.kf_position_update`, and the association still runs in bistatic coordinates on the
+:func:`shared.filters.kalman.update`, and the association still runs in bistatic coordinates on the
 moment-matched prediction (inverse UT of its mean and covariance, digest §2.6 step 2).
 
 Notation (Blom & Bar-Shalom 1988; Bar-Shalom, Li & Kirubarajan 2001, §11.6.6): r models j = 1..r,
@@ -38,10 +38,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .filter import innovation, kf_position_update, predict
-from .geometry import AZ_INDEX, FloatArray, wrap_angle
+from shared.filters import kalman
+from shared.filters.angles import wrap_pi
+from shared.filters.covariance import symmetrize
+
+from .filter import innovation, predict
+from .geometry import AZ_INDEX, FloatArray
 from .models import H_POS
-from .ut import symmetrize
 
 #: smallest model probability kept after an update (keeps every model alive; renormalised)
 MU_FLOOR = 1e-12
@@ -117,31 +120,23 @@ def imm_predict(
     return c, xp, Pp
 
 
-def gaussian_loglik(nu: FloatArray, S: FloatArray) -> FloatArray:
-    """ln N(nu; 0, S) for innovations nu (..., m) and covariances S (..., m, m)."""
-    m = nu.shape[-1]
-    _, logdet = np.linalg.slogdet(S)
-    d2 = np.einsum("...i,...i->...", nu, np.linalg.solve(S, nu[..., None])[..., 0])
-    return -0.5 * (d2 + logdet + m * np.log(2.0 * np.pi))
-
-
 def bistatic_loglik(z: FloatArray, z_pred: FloatArray, R_pred: FloatArray, R_plot: FloatArray) -> FloatArray:
     """ln Lambda_j from the 4-D bistatic plot: N(z - z_j^-; 0, R_b,j^- + R_plot) with the azimuth wrapped.
 
     z (B, 4), R_plot (B, 4, 4); per model z_pred (B, r, 4), R_pred (B, r, 4, 4) (inverse UT of x_j^-, P_j^-).
     """
     nu = innovation(z[:, None, :], z_pred)
-    return gaussian_loglik(nu, symmetrize(R_pred + R_plot[:, None]))
+    return kalman.log_likelihood(nu, symmetrize(R_pred + R_plot[:, None]))
 
 
 def combine_measurements(c: FloatArray, zm: FloatArray, Sm: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Moment-matched predicted measurement of the mixture (B, r, 4) -> (B, 4), azimuth averaged wrap-safe."""
     ref = zm[:, :1, :]
     d = zm - ref
-    d[..., AZ_INDEX] = wrap_angle(d[..., AZ_INDEX])
+    d[..., AZ_INDEX] = wrap_pi(d[..., AZ_INDEX])
     mean_d, S = combine(c, d, Sm)
     z = ref[:, 0] + mean_d
-    z[:, AZ_INDEX] = wrap_angle(z[:, AZ_INDEX])
+    z[:, AZ_INDEX] = wrap_pi(z[:, AZ_INDEX])
     return z, S
 
 
@@ -161,11 +156,9 @@ def imm_position_update(
     B, r, n = xm.shape
     yr = np.repeat(y, r, axis=0)
     Rr = np.repeat(R, r, axis=0)
-    x_new, P_new, _ = kf_position_update(xm.reshape(B * r, n), Pm.reshape(B * r, n, n), yr, Rr)
+    x_new, P_new, nu, S = kalman.update(xm.reshape(B * r, n), Pm.reshape(B * r, n, n), yr, H_POS, Rr)
     if loglik is None:
-        nu = yr - xm.reshape(B * r, n)[:, :3]
-        S = symmetrize(H_POS @ Pm.reshape(B * r, n, n) @ H_POS.T + Rr)
-        loglik = gaussian_loglik(nu, S).reshape(B, r)
+        loglik = kalman.log_likelihood(nu, S).reshape(B, r)
     mu = update_probabilities(c, loglik)
     return mu, x_new.reshape(B, r, n), P_new.reshape(B, r, n, n)
 

@@ -8,8 +8,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from .geometry import BoolArray, FloatArray, h_a6, wrap_angle
-from .ut import CholeskyStats, TransformResult, symmetrize, transform
+from shared.filters.angles import wrap_pi
+from shared.filters.covariance import CholeskyStats, symmetrize
+from shared.filters.unscented import TransformResult, transform
+
+from .geometry import BoolArray, FloatArray, h_a6
 
 
 def ring_ellipse_test(
@@ -105,7 +108,7 @@ def two_plot_bistatic_estimate(
     ``"paper_diagonal"`` is the paper's diagonal P_b(2).
     """
     tau = np.asarray(tau2, dtype=np.float64)
-    a_dot = wrap_angle(z2[:, 1] - z1[:, 1]) / tau
+    a_dot = wrap_pi(z2[:, 1] - z1[:, 1]) / tau
     e_dot = (z2[:, 2] - z1[:, 2]) / tau
     xb = np.stack([z2[:, 0], z2[:, 3], z2[:, 1], a_dot, z2[:, 2], e_dot], axis=-1)
     var_a_dot = (sig1[:, 1] ** 2 + sig2[:, 1] ** 2) / tau**2

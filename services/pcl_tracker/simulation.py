@@ -18,9 +18,10 @@ import numpy as np
 from schemas.base import Header
 from schemas.radar import BistaticPlot, BistaticScan
 from schemas.truth import Truth
+from shared.filters.angles import wrap_pi
 
 from .config import SPEED_OF_LIGHT_MPS, GeometryConfig, PclTrackerConfig
-from .geometry import FloatArray, h_b, wrap_angle
+from .geometry import FloatArray, h_b
 
 #: paper geometry and target (digest §3.1)
 PAPER_TX_M = (8000.0, 0.0, 300.0)
@@ -239,7 +240,7 @@ def _plot(sc: PclScenario, plot_id: str, z: FloatArray, L: float, snr_db: float 
         )
     return BistaticPlot(
         plot_id=plot_id,
-        azimuth_deg=float(np.degrees(wrap_angle(az))),
+        azimuth_deg=float(np.degrees(wrap_pi(az))),
         elevation_deg=float(np.clip(np.degrees(el), -90.0, 90.0)),
         snr_db=snr_db,
         **rng_kw,
@@ -344,7 +345,7 @@ def noisy_plots(
     sig = np.array([sigma[0], math.radians(sigma[1]), math.radians(sigma[2]), sigma[3]])
     z_true = true_bistatic(truth_states, tx)
     z = z_true[None, :, :] + rng.standard_normal((n_runs, *z_true.shape)) * sig
-    z[..., 1] = wrap_angle(z[..., 1])
+    z[..., 1] = wrap_pi(z[..., 1])
     return z, sig
 
 

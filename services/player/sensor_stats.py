@@ -28,6 +28,7 @@ import numpy as np
 
 from schemas import Attitude, Depth, Heading, InsSample, Message, SpeedLog, Truth
 from shared import keys
+from shared.filters.angles import wrap_pi_left
 
 from .simulators import Event, TruthSource, TruthState
 
@@ -39,11 +40,6 @@ ERROR_MODELS: dict[type[Message], ErrorModel] = {}
 def register_error_model(model: type[Message], fn: ErrorModel) -> None:
     """Teach ``sensor_stats`` the error components of another message type."""
     ERROR_MODELS[model] = fn
-
-
-def wrap_pi(a: np.ndarray) -> np.ndarray:
-    out: np.ndarray = np.mod(a + math.pi, 2 * math.pi) - math.pi
-    return out
 
 
 def _col(msgs: Sequence[Any], name: str) -> np.ndarray:
@@ -61,14 +57,14 @@ def _speed_log(msgs: Sequence[Any], t: TruthState) -> dict[str, np.ndarray]:
 
 
 def _heading(msgs: Sequence[Any], t: TruthState) -> dict[str, np.ndarray]:
-    return {"heading_rad": wrap_pi(_col(msgs, "heading_rad") - t.heading_rad)}
+    return {"heading_rad": wrap_pi_left(_col(msgs, "heading_rad") - t.heading_rad)}
 
 
 def _attitude(msgs: Sequence[Any], t: TruthState) -> dict[str, np.ndarray]:
     return {
-        "heading_rad": wrap_pi(_col(msgs, "heading_rad") - t.heading_rad),
-        "pitch_rad": wrap_pi(_col(msgs, "pitch_rad") - t.pitch_rad),
-        "roll_rad": wrap_pi(_col(msgs, "roll_rad") - t.roll_rad),
+        "heading_rad": wrap_pi_left(_col(msgs, "heading_rad") - t.heading_rad),
+        "pitch_rad": wrap_pi_left(_col(msgs, "pitch_rad") - t.pitch_rad),
+        "roll_rad": wrap_pi_left(_col(msgs, "roll_rad") - t.roll_rad),
     }
 
 

@@ -43,6 +43,7 @@ from schemas import (
 )
 from schemas.rd_nav import BeaconAssignment, FollowerObs, RdNavFix, TdoaCycle, VehicleStatus
 from shared.errors import InputRejected
+from shared.filters.covariance import is_positive_definite, symmetrize
 
 from .assembler import CycleAssembler, OpenCycle
 from .config import RdNavConfig
@@ -511,7 +512,7 @@ class RdNavCore:
         cfg = self.cfg
         if self.dr.covers(cd.t1):
             self._predict_to(cd.t1)
-        x_hat, Q = self.pf.estimate()
+        x_hat, P_hat = self.pf.estimate()
         M = cd.d.size
         zj = np.full(M, cd.depth)
         G: F64 | None = None  # DR error states -> motion compensation (process_model dr_errors)
@@ -541,8 +542,8 @@ class RdNavCore:
                 Hz = np.hstack([H, -np.einsum("mi,mij->mj", H, G)])
                 S = Hz @ C_joint @ Hz.T + R
             else:
-                S = H @ Q @ H.T + R
-            S = 0.5 * (S + S.T)
+                S = H @ P_hat @ H.T + R
+            S = symmetrize(S)
             nis = nis_full = float(e @ np.linalg.solve(S, e))
             resid = e.tolist()
             if M >= 2:
@@ -574,7 +575,7 @@ class RdNavCore:
                 prior_w = self.pf.w
                 if T is None:  # the cloud's moments and this cycle's linearisation, for a degenerate update
                     joint = Hz is not None and C_joint is not None and z_mean is not None
-                    gauss = (z_mean, C_joint, Hz, e, S) if joint else (x_hat, Q, H, e, S)  # type: ignore[assignment]
+                    gauss = (z_mean, C_joint, Hz, e, S) if joint else (x_hat, P_hat, H, e, S)  # type: ignore[assignment]
                 Rw = R
                 if G is not None:  # each particle compensates with its mean DR errors; their shared spread adds to R
                     He = -np.einsum("mi,mij->mj", H, G)
@@ -652,7 +653,7 @@ class RdNavCore:
             self._regenerate(*gauss)  # too few particles carry the posterior (e.g. the first cycle after the R0 disc)
             flags.append("REGENERATED")
         # estimate (Eq. 6-7) before regeneration, then regenerate (§4.4 steps 6-7)
-        x_hat, Q = self.pf.estimate()
+        x_hat, P_hat = self.pf.estimate()
         if cfg.estimate == "map" and event == "USED":
             m = self.pf.map_estimate(cfg.map_weight_threshold)
             if m is not None:
@@ -679,7 +680,7 @@ class RdNavCore:
                 cd.t1_stamp_ns,
                 cd.oc.leader.t_rx_local_s,
                 x_hat,
-                Q,
+                P_hat,
                 status,
                 cycle_status,
                 reject if event != "USED" else None,
@@ -731,8 +732,8 @@ class RdNavCore:
         K = np.linalg.solve(S, H @ C).T
         zp = z + K @ e
         Cp = C - K @ S @ K.T
-        Pxx = 0.5 * (Cp[:2, :2] + Cp[:2, :2].T)
-        if not (np.isfinite(zp).all() and np.isfinite(Pxx).all()) or np.linalg.eigvalsh(Pxx).min() <= 0.0:
+        Pxx = symmetrize(Cp[:2, :2])
+        if not (np.isfinite(zp).all() and is_positive_definite(Pxx)):
             return
         self.pf.resample(0.0)
         self.pf.X = zp[:2][None, :] + self.rng.standard_normal(self.pf.X.shape) @ np.linalg.cholesky(Pxx).T
@@ -740,7 +741,7 @@ class RdNavCore:
             B = np.linalg.solve(Pxx, Cp[:2, 2:]).T  # C_ex C_xx^-1
             self.pf.E = zp[2:][None, :] + (self.pf.X - zp[:2][None, :]) @ B.T
             PE = Cp[2:, 2:] - B @ Cp[:2, 2:]
-            self.pf.PE = 0.5 * (PE + PE.T)
+            self.pf.PE = symmetrize(PE)
 
     def _one_late_arrival(
         self, e: F64, S: F64, ids: list[str], rest_gates: dict[int, float] | None = None, min_delay_m: float = 0.0
@@ -881,7 +882,7 @@ class RdNavCore:
             P = crlb(H, R)
         except np.linalg.LinAlgError:
             return None
-        if not (np.isfinite(P).all() and np.all(np.linalg.eigvalsh(P) > 0.0)):
+        if not is_positive_definite(P):
             return None
         b = self.dr.at(cd.t1)
         return Snapshot(p=p.copy(), P_crlb=P, dr_xy=np.array([b.x_m, b.y_m]), t_s=cd.t1)
@@ -931,9 +932,9 @@ class RdNavCore:
         a = self.dr_state
         dX = np.array([b.x_m - a.x_m, b.y_m - a.y_m])
         if self.drift is None:
-            x_hat, Q = self.pf.estimate()
+            x_hat, P_hat = self.pf.estimate()
             x = x_hat + dX
-            Qp = Q + self._growth(a, b) * np.eye(2)
+            Qp = P_hat + self._growth(a, b) * np.eye(2)
         else:  # the cloud carried by DR with each particle's errors, plus the step's noise
             step = self.drift.step(b.t_s - a.t_s, dX, np.array([b.un_s - a.un_s, b.ue_s - a.ue_s]))
             Gp, Qv = self.pf.step_maps(step)
@@ -987,7 +988,7 @@ class RdNavCore:
         flags: list[str],
         t: float,
     ) -> RdNavFix:
-        P = 0.5 * (P + P.T) + 1e-9 * np.eye(2)  # a collapsed cloud still reports a positive-definite Q
+        P = symmetrize(P) + 1e-9 * np.eye(2)  # a collapsed cloud still reports a positive-definite P
         return RdNavFix(
             header=Header(stamp_ns=stamp_ns, frame_id=self.cfg.frame_id),
             auv_id=self.cfg.auv_id,

@@ -34,6 +34,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from shared.filters import gauss_markov
+from shared.filters.covariance import symmetrize
+
 from .geometry import F64
 
 #: the error states, in order
@@ -82,8 +85,7 @@ class DriftModel:
 
     def step(self, dt_s: float, dX: F64, U: F64) -> DriftStep:
         """The model over one step of dt_s with DR displacement dX (m) and heading integral U (s)."""
-        a = np.exp(-max(dt_s, 0.0) / self.tau)
-        w_sd = self.sigma * np.sqrt(np.maximum(1.0 - a * a, 0.0))
+        a, w_sd = gauss_markov.discretise_sd(dt_s, self.tau, self.sigma)
         G = np.column_stack([U, J90 @ dX, dX])
         return DriftStep(G=G, a=a, w_sd=w_sd, Q_white=self.white_cov(dt_s, dX, U))
 
@@ -100,7 +102,7 @@ class DriftModel:
         var_cross = self.heading_white_rad**2 * Ts * L2 / dt_s
         floor = self.floor_m**2 * math.sqrt(L2) / self.floor_path_m
         Q = var_along * np.outer(along, along) + var_cross * np.outer(cross, cross) + floor * np.eye(2)
-        return 0.5 * (Q + Q.T)
+        return symmetrize(Q)
 
     def position_cov_of_states(self, G: F64) -> F64:
         """Displacement covariance G P0 G^T the stationary error states alone would cause over a step (m^2)."""

@@ -19,6 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from shared.filters import kalman
+from shared.filters.covariance import symmetrize
+
 from .drift import DriftStep
 from .geometry import F64, jacobian_d, predict_d
 
@@ -65,7 +68,7 @@ class EkfShadow:
         self.z = np.zeros(N_STATE)
         self.z[:2] = np.asarray(mean, dtype=np.float64)
         self.Pz = np.zeros((N_STATE, N_STATE))
-        self.Pz[:2, :2] = 0.5 * (cov + cov.T)
+        self.Pz[:2, :2] = symmetrize(cov)
         if error_cov is not None:
             self.Pz[2:, 2:] = error_cov
         self.initialised = True
@@ -88,11 +91,9 @@ class EkfShadow:
         Q[:2, 2:] = -0.5 * G @ W
         Q[2:, :2] = Q[:2, 2:].T
         Q[2:, 2:] = W
-        z = F @ self.z
-        z[:2] += dX
-        P = F @ self.Pz @ F.T + Q
-        self.z = z
-        self.Pz = 0.5 * (P + P.T)
+        b = np.zeros(N_STATE)
+        b[:2] = dX
+        self.z, self.Pz = kalman.predict(self.z, self.Pz, F, Q, b)
 
     def update(
         self,
@@ -117,17 +118,13 @@ class EkfShadow:
         H[:, :2] = Hx
         if G is not None:
             H[:, 2:] = -np.einsum("mi,mij->mj", Hx, G)
-        S = H @ self.Pz @ H.T + R
-        S = 0.5 * (S + S.T)
-        Sinv_e = np.linalg.solve(S, e)
-        nis = float(e @ Sinv_e)
+        S = kalman.innovation_covariance(self.Pz, H, R)
+        nis = float(e @ np.linalg.solve(S, e))
         if gate is not None and not nis <= gate:
             self.rejections += 1
             return EkfUpdate(False, nis, e)
         K = np.linalg.solve(S, H @ self.Pz).T  # P H^T S^-1 (S and P symmetric)
-        A = np.eye(N_STATE) - K @ H
-        P = A @ self.Pz @ A.T + K @ R @ K.T  # Joseph form
         self.z = self.z + K @ e
-        self.Pz = 0.5 * (P + P.T)
+        self.Pz = kalman.joseph(self.Pz, K, H, R)
         self.rejections = 0
         return EkfUpdate(True, nis, e)

@@ -20,6 +20,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from shared.filters.covariance import symmetrize
+
 F64 = NDArray[np.floating[Any]]  # float64 throughout; typed loosely for numpy's linalg results
 
 
@@ -94,7 +96,7 @@ def measurement_cov(
         R = R + k * k * np.outer(s_m, s_m)
     if node_term is not None:
         R = R + node_term
-    return 0.5 * (R + R.T)
+    return symmetrize(R)
 
 
 def node_cov_term(
@@ -113,7 +115,7 @@ def node_cov_term(
     hj = e1j - ejx  # (M, 3) sensitivity to the own follower
     term = sigma_leader_m**2 * (g @ g.T)
     term = term + np.diag(sigma_f_m**2 * np.sum(hj * hj, axis=1))
-    return 0.5 * (term + term.T)
+    return symmetrize(term)
 
 
 def motion_comp_cov(p: F64, zj: F64, delta: F64, followers: F64, dt_s: F64, sigma_v_mps: float) -> F64:
@@ -144,7 +146,7 @@ def crlb(H: F64, R: F64) -> F64:
     """Single-cycle Cramer-Rao bound P_CRLB = (H^T R^-1 H)^-1 on the horizontal position, m^2."""
     F = fisher(H, R)
     P = np.linalg.inv(F)
-    return 0.5 * (P + P.T)
+    return symmetrize(P)
 
 
 def drms(P: F64) -> float:

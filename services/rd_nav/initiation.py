@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from shared.filters.covariance import symmetrize
+
 from .geometry import F64
 
 
@@ -101,4 +103,4 @@ class Reinitialiser:
         if estimate is not None and float(np.hypot(*(newest.p - estimate))) > self.max_distance_m:
             return None
         cov = self.crlb_scale * newest.P_crlb + self.extra_var_m2 * np.eye(2)
-        return Proposal(mean=newest.p.copy(), cov=0.5 * (cov + cov.T), spread_m=spread)
+        return Proposal(mean=newest.p.copy(), cov=symmetrize(cov), spread_m=spread)

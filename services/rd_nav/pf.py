@@ -24,6 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from shared.filters.covariance import symmetrize
+from shared.filters.resampling import effective_sample_size, systematic_resample
+
 from .drift import DriftStep
 from .geometry import F64, predict_d
 
@@ -60,7 +63,7 @@ class ParticleFilter:
 
     def init_gaussian(self, mean: F64, cov: F64, error_cov: F64 | None = None) -> None:
         """Re-seed as N(mean, cov) (§4.4 step 8); DR error states at their stationary distribution."""
-        L = np.linalg.cholesky(0.5 * (cov + cov.T))
+        L = np.linalg.cholesky(symmetrize(cov))
         self.X = mean[None, :] + self.rng.standard_normal((self.n, 2)) @ L.T
         self.w = np.full(self.n, 1.0 / self.n)
         self._init_errors(error_cov)
@@ -80,21 +83,21 @@ class ParticleFilter:
         """Eq. (5) with the DR errors marginalised (module docstring)."""
         Gp, Qv = self.step_maps(step)
         Nc = Gp @ self.PE @ Gp.T + Qv
-        Nc = 0.5 * (Nc + Nc.T) + 1e-12 * np.eye(2)
+        Nc = symmetrize(Nc) + 1e-12 * np.eye(2)
         nu = self.rng.standard_normal(self.X.shape) @ np.linalg.cholesky(Nc).T  # X_b - E[X_b | m_n]
         self.X += dX[None, :] - self.E @ Gp.T + nu
         L = -self.PE @ Gp.T @ np.linalg.inv(Nc)  # (3, 2)
         A = np.diag(step.a)
         self.E = (self.E + nu @ L.T) * step.a[None, :]
         P = A @ (self.PE - L @ Nc @ L.T) @ A + np.diag(step.w_sd**2)
-        self.PE = 0.5 * (P + P.T)
+        self.PE = symmetrize(P)
 
     @staticmethod
     def step_maps(step: DriftStep) -> tuple[F64, F64]:
         """G' (the states' mean over the step) and the position noise Q_v (white + the states' change within it)."""
         Gp = step.G * (0.5 * (1.0 + step.a))[None, :]
         Qv = step.Q_white + 0.25 * step.G @ np.diag(step.w_sd**2) @ step.G.T
-        return Gp, 0.5 * (Qv + Qv.T)
+        return Gp, symmetrize(Qv)
 
     def predicted(self, dX: F64, G: F64) -> F64:
         """Where the particles would be after a DR displacement dX with their current error means (no noise)."""
@@ -102,11 +105,11 @@ class ParticleFilter:
 
     # ----- estimate ---------------------------------------------------------------------------
     def estimate(self) -> tuple[F64, F64]:
-        """Weighted mean (Eq. 6) and cloud covariance Q_k (Eq. 7), symmetrised."""
+        """Weighted mean x (Eq. 6) and cloud covariance P (the paper's Q_k, Eq. 7), symmetrised."""
         m = self.w @ self.X
         D = self.X - m[None, :]
-        Q = (D.T * self.w) @ D
-        return m, 0.5 * (Q + Q.T)
+        P = (D.T * self.w) @ D
+        return m, symmetrize(P)
 
     def map_estimate(self, threshold: float) -> F64 | None:
         """The maximum-weight particle if its weight exceeds the threshold (§4.4 step 7)."""
@@ -114,7 +117,7 @@ class ParticleFilter:
         return self.X[k].copy() if self.w[k] > threshold else None
 
     def n_eff(self) -> float:
-        return float(1.0 / np.sum(self.w * self.w))
+        return effective_sample_size(self.w)
 
     # ----- correction -------------------------------------------------------------------------
     def weight(
@@ -158,10 +161,7 @@ class ParticleFilter:
         ``shrink``: the jitter does not widen the cloud (Liu & West 2001): X <- m + a (X - m) + sigma_r xi with
         a = sqrt(1 - sigma_r^2 / lambda) along each principal axis (lambda its variance; no jitter along an axis
         narrower than sigma_r), so the resampled cloud keeps its mean and covariance while its duplicates separate."""
-        cs = np.cumsum(self.w)
-        cs[-1] = 1.0
-        u = (self.rng.random() + np.arange(self.n)) / self.n
-        idx = np.minimum(np.searchsorted(cs, u, side="right"), self.n - 1)
+        idx = systematic_resample(self.w, self.rng)
         self.X = self.X[idx]
         self.E = self.E[idx]
         self.w = np.full(self.n, 1.0 / self.n)
@@ -193,11 +193,11 @@ class ParticleFilter:
         D = Z - m[None, :]
         C = (D.T * self.w) @ D
         C[2:, 2:] += self.PE
-        return m, 0.5 * (C + C.T)
+        return m, symmetrize(C)
 
     def error_estimate(self) -> tuple[F64, F64]:
         """Weighted mean and covariance of the DR error states."""
         m = self.w @ self.E
         D = self.E - m[None, :]
         C = (D.T * self.w) @ D + self.PE
-        return m, 0.5 * (C + C.T)
+        return m, symmetrize(C)

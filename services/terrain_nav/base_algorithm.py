@@ -151,7 +151,7 @@ class BaseRecurrentSearch(TerrainNavigator):
             cell = self.map.cell_m
             dx, dz = i_star * cell, j_star * cell
             cov, degenerate = grid_covariance(F, a, b, n_valid, 1.0, cell)
-            s = self.bank.S[:, a, b]
+            s = self.bank.x[:, a, b]
             P = self.bank.P
             ev.fix = FixData(
                 dx_m=dx,

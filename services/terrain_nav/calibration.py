@@ -64,7 +64,7 @@ def self_matching_success(
         c = -(h_meas + bias)
         patch = patches[I0 + k - Mx, J0 - Mz]  # (K, n_i, n_j): hypothesis patch around the INS cell
         bank.predict(k * dt)
-        nu = np.subtract(patch + c[:, None, None], bank.S[2])
+        nu = np.subtract(patch + c[:, None, None], bank.x[2])
         if k > 0:
             F += nu * nu
         bank.update(nu, R)

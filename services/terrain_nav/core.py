@@ -386,7 +386,7 @@ class TerrainNavigator:
                 dx, dz = r.dx_m, r.dz_m
                 if r.cov_m2 is not None:
                     cov, degenerate = r.cov_m2, False
-        s = self.bank.S[:, a, b]
+        s = self.bank.x[:, a, b]
         P = self.bank.P
         dh, dvh = float(s[2]), float(s[1])
         return FixData(

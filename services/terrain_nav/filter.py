@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from shared.filters.covariance import symmetrize
+
 from .geometry import F64
 from .models import phi31
 
 
 class KalmanBank:
-    """State vectors of all hypotheses (``S[0]`` = da, ``S[1]`` = dV, ``S[2]`` = dh) and the shared P.
+    """State vectors of all hypotheses (``x[0]`` = da, ``x[1]`` = dV, ``x[2]`` = dh; the digest's S) and the shared P.
 
     The shared 3x3 covariance is kept as its six distinct entries in Python floats: the closed forms of
     ``Phi P Phi^T + Q`` and of the Joseph update for C = [0 0 1] cost a few microseconds, where generic
@@ -37,7 +39,7 @@ class KalmanBank:
         self.phi_mode = phi_mode
         self.q_a = q_a
         self.q_h = q_h
-        self.S: F64 = np.zeros((3, *shape))
+        self.x: F64 = np.zeros((3, *shape))
         self._p = _pack(self.P0)
         self.t_prev: float | None = None
         self._nu: F64 = np.empty(shape)
@@ -51,7 +53,7 @@ class KalmanBank:
 
     def reset(self) -> None:
         """Zero states and P = P0 (a start)."""
-        self.S.fill(0.0)
+        self.x.fill(0.0)
         self._p = _pack(self.P0)
         self.t_prev = None
 
@@ -61,16 +63,16 @@ class KalmanBank:
         self.t_prev = t
         if T <= 0.0:
             return
-        S, tmp = self.S, self._tmp
+        x, tmp = self.x, self._tmp
         f = phi31(T, self.phi_mode)
         # dh' = dh + T dV + phi31 da ; dV' = dV + T da ; da' = da  (eq. 3); order matters: dh uses the old dV
-        np.multiply(S[1], T, out=tmp)
-        S[2] += tmp
+        np.multiply(x[1], T, out=tmp)
+        x[2] += tmp
         if f != 0.0:
-            np.multiply(S[0], f, out=tmp)
-            S[2] += tmp
-        np.multiply(S[0], T, out=tmp)
-        S[1] += tmp
+            np.multiply(x[0], f, out=tmp)
+            x[2] += tmp
+        np.multiply(x[0], T, out=tmp)
+        x[1] += tmp
         # Phi P Phi^T + Q in closed form (P = [[a, b, c], [b, d, e], [c, e, g]])
         a, b, c, d, e, g = self._p
         r10, r11, r12 = T * a + b, T * b + d, T * c + e  # row 1 of Phi P
@@ -93,7 +95,7 @@ class KalmanBank:
         With c = h_ra - h_ins, ``patch + c`` is the observation y_ij of dh (the innovation is -e_ij of eq. 4).
         """
         nu = self._nu
-        np.subtract(patch, self.S[2], out=nu)
+        np.subtract(patch, self.x[2], out=nu)
         nu += c
         return nu
 
@@ -104,20 +106,20 @@ class KalmanBank:
     def update(self, nu: F64, R: float) -> float:
         """Measurement update of every hypothesis with its innovation ``nu``; returns the shared S_k.
 
-        ``s += K nu`` per hypothesis, K = P[:, 2]/S_k; the shared covariance by the Joseph form
+        ``x += K nu`` per hypothesis, K = P[:, 2]/S_k; the shared covariance by the Joseph form
         ``(I - K C) P (I - K C)^T + R K K^T``, which for C = [0 0 1] and p = P[:, 2] expands to
         ``P_ij - K_i p_j - p_i K_j + S_k K_i K_j`` (symmetric by construction).
         """
         a, b, c, d, e, g = self._p
         Sk = g + R
         k0, k1, k2 = c / Sk, e / Sk, g / Sk
-        S, tmp = self.S, self._tmp
+        x, tmp = self.x, self._tmp
         np.multiply(nu, k0, out=tmp)
-        S[0] += tmp
+        x[0] += tmp
         np.multiply(nu, k1, out=tmp)
-        S[1] += tmp
+        x[1] += tmp
         np.multiply(nu, k2, out=tmp)
-        S[2] += tmp
+        x[2] += tmp
 
         def j(pi: float, pj: float, ki: float, kj: float, pij: float) -> float:
             return pij - ki * pj - pi * kj + Sk * ki * kj
@@ -134,7 +136,7 @@ class KalmanBank:
 
 
 def _pack(P: F64) -> tuple[float, float, float, float, float, float]:
-    Ps = 0.5 * (P + P.T)
+    Ps = symmetrize(P)
     return (
         float(Ps[0, 0]),
         float(Ps[0, 1]),

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from shared.filters.covariance import symmetrize
+
 from .config import TerrainNavConfig
 from .filter import KalmanBank
 from .geometry import F64, bilinear
@@ -65,7 +67,7 @@ def grid_covariance(
         return fallback, True
     sigma2 = max(float(F[a, b]), 0.0) / n_valid
     cov = 2.0 * sigma2 * np.linalg.inv(H)
-    cov = 0.5 * (cov + cov.T)
+    cov = symmetrize(cov)
     if not refined:
         cov += np.eye(2) / 12.0
         for k in range(2):  # floor each sigma at one cell / sqrt(12)
@@ -124,7 +126,7 @@ def refine(
         if _pd(H):
             sigma2 = max(float(cost[best]), 0.0) / used
             cov_cells = 2.0 * sigma2 * np.linalg.inv(H)
-            cov_cells = 0.5 * (cov_cells + cov_cells.T) + np.eye(2) * (step * step / 12.0)
+            cov_cells = symmetrize(cov_cells) + np.eye(2) * (step * step / 12.0)
             # the offset drifts with the horizontal velocity error over the window: the estimate belongs to
             # about the middle of the window, the fix to its newest measurement
             span = measq[-1].t - measq[0].t if measq else 0.0

@@ -17,10 +17,11 @@ from pydantic import AfterValidator, Field
 
 from schemas import Depth, Heading, InsSample, Message, SpeedLog
 from shared import keys
+from shared.filters import gauss_markov
 
 from .base import NS_PER_S, Event, ScenarioContext, SimParams, sample_stamps_ns
 from .columns import ColumnStream
-from .error_models import gauss_markov, random_walk, white
+from .error_models import random_walk, white
 from .trajectory import TWO_PI, Trajectory
 
 
@@ -119,7 +120,7 @@ class SensorStream:
             for axis, bias in zip(("forward", "starboard", "down"), spec.bias_mps, strict=True):
                 self.errors[axis] = bias + white(rng, n, spec.sigma_mps)
         elif isinstance(spec, HeadingParams):
-            self.errors["gm"] = gauss_markov(rng, n, math.radians(spec.gm_sigma_deg), spec.gm_tau_s, self.dt_s)
+            self.errors["gm"] = gauss_markov.path(rng, n, math.radians(spec.gm_sigma_deg), spec.gm_tau_s, self.dt_s)
             self.errors["white"] = white(rng, n, math.radians(spec.white_sigma_deg))
             self.errors["heading"] = math.radians(spec.bias_deg) + self.errors["gm"] + self.errors["white"]
         elif isinstance(spec, DepthParams):

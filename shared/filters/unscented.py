@@ -1,9 +1,21 @@
-"""The paper's unscented transform (digest §2.2), its first-order counterpart and a robust Cholesky.
+"""Sigma points and the unscented transform (Julier & Uhlmann; Van der Merwe's scaled set), with a first-order
+counterpart, batched over a leading dimension B.
 
-Symmetric 2n-point scheme with equal weights 1/(2n) and no central point: sigma points
-``X_i = m ± sqrt(n) D[:, i]`` with ``P = D D^T``. Everything is batched over a leading dimension B.
-Azimuth outputs are averaged relative to ``f(m)`` with wrapped differences (digest §2.2 [D] Angles), so the
-result is invariant under rotation of the scene about the vertical axis.
+Van der Merwe's scaled sigma points of N(m, P) (n states), lambda = alpha^2 (n + kappa) - n::
+
+    X_0 = m,   X_i = m + [sqrt((n + lambda) P)]_i,   X_{n+i} = m - [sqrt((n + lambda) P)]_i      (i = 1..n)
+    Wm_0 = lambda / (n + lambda),   Wc_0 = Wm_0 + 1 - alpha^2 + beta,   Wm_i = Wc_i = 1 / (2 (n + lambda))
+
+and the unscented transform of the propagated points Y_i = f(X_i)::
+
+    y = sum_i Wm_i Y_i,   P_y = sum_i Wc_i (Y_i - y)(Y_i - y)^T (+ noise),   P_xy = sum_i Wc_i (X_i - m)(Y_i - y)^T
+
+The symmetric set of digest 003 §2.2 (PCL tracker) is the case alpha = 1, beta = 0, kappa = 0: lambda = 0, so the
+central point has weight 0 and is left out; the 2n points ``m ± sqrt(n) D[:, i]`` (P = D D^T) have equal weights
+1/(2n) (:func:`sigma_points`, :func:`unscented_transform`). Angle outputs (``az_index``) are averaged relative to
+``f(m)`` with wrapped differences, so the result is invariant under a rotation of the angle.
+:func:`linearized_transform` is the first-order (EKF) counterpart y = f(m), P_y = J P J^T with a central-difference
+Jacobian J.
 """
 
 from __future__ import annotations
@@ -13,64 +25,65 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import FloatArray, wrap_angle
+from .angles import wrap_pi
+from .covariance import CholeskyStats, FloatArray, robust_cholesky, symmetrize
+
+__all__ = [
+    "CholeskyStats",
+    "PointMap",
+    "TransformResult",
+    "linearized_transform",
+    "merwe_scaled_sigma_points",
+    "moments_from_points",
+    "numerical_jacobian",
+    "sigma_points",
+    "symmetrize",
+    "transform",
+    "unscented_transform",
+    "weighted_transform",
+]
 
 #: f maps points (..., n) to outputs (..., k)
 PointMap = Callable[[FloatArray], FloatArray]
 
 
-@dataclass
-class CholeskyStats:
-    """Counts of the Cholesky fallbacks of digest §5.6 (jitter, then eigenvalue clipping)."""
+def merwe_scaled_sigma_points(
+    m: FloatArray, P: FloatArray, alpha: float, beta: float, kappa: float
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Van der Merwe's 2n + 1 scaled sigma points of N(m (n,), P (n, n)): (points (2n+1, n), Wm, Wc).
 
-    jitter: int = 0
-    eig_clip: int = 0
-
-    @property
-    def total(self) -> int:
-        return self.jitter + self.eig_clip
-
-
-def symmetrize(P: FloatArray) -> FloatArray:
-    """(P + P^T) / 2 over the last two axes."""
-    return 0.5 * (P + np.swapaxes(P, -1, -2))
-
-
-def robust_cholesky(P: FloatArray, stats: CholeskyStats | None = None) -> FloatArray:
-    """Square roots D with D D^T = P for a batch (B, n, n).
-
-    On failure (digest §5.6): symmetrise, add jitter 1e-9 * tr(P)/n * I and retry; if that fails too, use
-    an eigenvalue-clipped square root V sqrt(max(w, 0)). Fallbacks are counted in ``stats``.
+    The square root is the lower Cholesky factor L of (n + lambda) P, X_i = m + L[:, i] (FilterPy takes the
+    rows of the upper factor L^T: the same points).
     """
-    try:
-        return np.asarray(np.linalg.cholesky(P), dtype=np.float64)
-    except np.linalg.LinAlgError:
-        pass
-    n = P.shape[-1]
-    out = np.empty_like(P)
-    eye = np.eye(n)
-    for b in range(P.shape[0]):
-        Pb = P[b]
-        try:
-            out[b] = np.linalg.cholesky(Pb)
-            continue
-        except np.linalg.LinAlgError:
-            pass
-        Ps = symmetrize(Pb)
-        tr = float(np.trace(Ps))
-        jitter = 1e-9 * abs(tr) / n if tr != 0.0 else 1e-12
-        try:
-            out[b] = np.linalg.cholesky(Ps + jitter * eye)
-            if stats is not None:
-                stats.jitter += 1
-            continue
-        except np.linalg.LinAlgError:
-            pass
-        w, V = np.linalg.eigh(Ps)
-        out[b] = V * np.sqrt(np.maximum(w, 0.0))[None, :]
-        if stats is not None:
-            stats.eig_clip += 1
-    return out
+    n = m.shape[-1]
+    lam = alpha * alpha * (n + kappa) - n
+    L = np.linalg.cholesky((n + lam) * P)
+    X = np.vstack([m[None, :], m[None, :] + L.T, m[None, :] - L.T])
+    Wm = np.full(2 * n + 1, 0.5 / (n + lam))
+    Wc = Wm.copy()
+    Wm[0] = lam / (n + lam)
+    Wc[0] = lam / (n + lam) + (1.0 - alpha * alpha + beta)
+    return X, Wm, Wc
+
+
+def weighted_transform(
+    Y: FloatArray, Wm: FloatArray, Wc: FloatArray, noise_cov: FloatArray | None = None
+) -> tuple[FloatArray, FloatArray]:
+    """Weighted moments of propagated sigma points Y (N, k): y = sum Wm Y, P_y = sum Wc (Y - y)(Y - y)^T + noise."""
+    y = Wm @ Y
+    d = Y - y[None, :]
+    P = (d.T * Wc) @ d
+    if noise_cov is not None:
+        P = P + noise_cov
+    return y, P
+
+
+def sigma_points(m: FloatArray, P: FloatArray, stats: CholeskyStats | None = None) -> FloatArray:
+    """The 2n symmetric sigma points (B, 2n, n): m + sqrt(n) D[:, i], then m - sqrt(n) D[:, i] (P = D D^T)."""
+    n = m.shape[-1]
+    D = robust_cholesky(P, stats)
+    off = np.sqrt(n) * np.swapaxes(D, -1, -2)  # row i = column i of D
+    return np.concatenate([m[:, None, :] + off, m[:, None, :] - off], axis=1)
 
 
 @dataclass
@@ -84,14 +97,6 @@ class TransformResult:
     mean: FloatArray
     cov: FloatArray
     cross: FloatArray
-
-
-def sigma_points(m: FloatArray, P: FloatArray, stats: CholeskyStats | None = None) -> FloatArray:
-    """The 2n symmetric sigma points (B, 2n, n): m + sqrt(n) D[:, i], then m - sqrt(n) D[:, i]."""
-    n = m.shape[-1]
-    D = robust_cholesky(P, stats)
-    off = np.sqrt(n) * np.swapaxes(D, -1, -2)  # row i = column i of D
-    return np.concatenate([m[:, None, :] + off, m[:, None, :] - off], axis=1)
 
 
 def unscented_transform(
@@ -126,14 +131,14 @@ def moments_from_points(
     G = np.array(G, dtype=np.float64, copy=True)
     if az_index is not None:
         ref = az_ref if az_ref is not None else G[:, 0, az_index]
-        G[..., az_index] = ref[:, None] + wrap_angle(G[..., az_index] - ref[:, None])
+        G[..., az_index] = ref[:, None] + wrap_pi(G[..., az_index] - ref[:, None])
     g = G.mean(axis=1)
     dG = G - g[:, None, :]
     cov = symmetrize(np.einsum("bik,bil->bkl", dG, dG) / (2 * n))
     no_cross = np.zeros((G.shape[0], 0, 0))
     cross = np.einsum("bik,bil->bkl", X - m[:, None, :], dG) / (2 * n) if with_cross else no_cross
     if az_index is not None:
-        g[:, az_index] = wrap_angle(g[:, az_index])
+        g[:, az_index] = wrap_pi(g[:, az_index])
     return TransformResult(g, cov, cross)
 
 
@@ -146,7 +151,7 @@ def numerical_jacobian(m: FloatArray, f: PointMap, az_index: int | None = None) 
     G = f(pts)
     dG = G[:, :n, :] - G[:, n:, :]  # (B, n, k)
     if az_index is not None:
-        dG[..., az_index] = wrap_angle(dG[..., az_index])
+        dG[..., az_index] = wrap_pi(dG[..., az_index])
     return np.swapaxes(dG / (2.0 * h[:, :, None]), -1, -2)
 
 
@@ -157,7 +162,7 @@ def linearized_transform(m: FloatArray, P: FloatArray, f: PointMap, az_index: in
     cross = P @ np.swapaxes(J, -1, -2)
     cov = symmetrize(J @ cross)
     if az_index is not None:
-        g[:, az_index] = wrap_angle(g[:, az_index])
+        g[:, az_index] = wrap_pi(g[:, az_index])
     return TransformResult(g, cov, cross)
 
 
