@@ -32,10 +32,13 @@ from conftest import REPO, fixstream_cmd
 
 from shared.mcap_io import decode_record, decode_rejected, is_rejected, iter_records
 from shared.session import free_tcp_port
+from tools.stack.pki import IDENTITIES, ROUTER_ACL
+from tools.stack.plan import FIXSTREAM_ARGV, identity_of
 from tools.stack.readiness import port_open
 
 COMPOSE = REPO / "compose.yaml"
 ROUTER_OVERRIDE = REPO / "compose.fixstream-router.yaml"
+SECURE_OVERRIDE = REPO / "compose.secure.yaml"
 #: one output stream per service of the demo stack: each must have answered in the container run
 DEMO_OUTPUTS = (
     "fixstream/fix/terrain/tan1",
@@ -152,6 +155,44 @@ def test_router_override_runs_the_project_image() -> None:
     assert router["image"] == "fixstream:latest"
     assert router["command"] == ["fixstream", "router", "--listen", "tcp/0.0.0.0:7447"]
     assert router["ports"] == compose_config(COMPOSE)["services"]["router"]["ports"]
+
+
+def test_secure_override_gives_every_service_its_own_identity_over_tls_and_nothing_more() -> None:
+    """compose.secure.yaml on top of the router override, as docker-compose merges it: the router on tls/ with the
+    access control mounted read-only, every other service connecting over TLS with the certificate of the identity
+    ``fixstream up --secure`` gives the same command (:func:`tools.stack.plan.identity_of`), and each container
+    holding the CA and its own certificate and key only, read-only, from ``$FIXSTREAM_PKI``."""
+    pki = "/srv/fixstream-pki"
+    services = compose_config(COMPOSE, ROUTER_OVERRIDE, SECURE_OVERRIDE, FIXSTREAM_PKI=pki)["services"]
+    assert sorted(services) == sorted(compose_config(COMPOSE)["services"])  # the override adds no service
+
+    def mounts(svc: dict[str, Any]) -> dict[str, tuple[str, str]]:
+        """target -> (host source, mode)"""
+        return {target: (source, mode) for source, target, mode in (v.split(":") for v in svc.get("volumes", []))}
+
+    used: set[str] = set()
+    for name, svc in services.items():
+        env = svc["environment"]
+        if name == "router":
+            identity = "router"
+            argv = svc["command"]
+            assert argv[:4] == ["fixstream", "router", "--listen", "tls/0.0.0.0:7447"], argv
+            acl = argv[argv.index("--config") + 1]
+            source, mode = mounts(svc)[acl]
+            assert Path(source) == ROUTER_ACL and mode == "ro"
+            assert svc["ports"] == ["127.0.0.1:7447:7447/tcp"]  # still loopback only
+        else:
+            identity = identity_of([*FIXSTREAM_ARGV, *svc["command"][1:]])
+            assert identity != "client", name  # every service writes something: a read-only identity would stall it
+            assert env["FIXSTREAM_ZENOH_CONNECT"] == "tls/router:7447", name
+        used.add(identity)
+        files = {
+            env[f"FIXSTREAM_ZENOH_TLS_{v}"]: f
+            for v, f in (("ROOT_CA", "ca.pem"), ("CERT", f"{identity}.pem"), ("KEY", f"{identity}.key"))
+        }
+        pki_mounts = {t: sm for t, sm in mounts(svc).items() if sm[0].startswith(pki + "/")}
+        assert pki_mounts == {target: (f"{pki}/{file}", "ro") for target, file in files.items()}, name
+    assert used == set(IDENTITIES) - {"client"}  # every identity the access control knows runs somewhere
 
 
 # ----- the real thing ---------------------------------------------------------------------------------------------
