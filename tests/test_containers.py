@@ -374,6 +374,7 @@ def test_secure_containers_record_every_estimator_and_refuse_what_is_not_theirs(
         s.put(key, data, encoding=zenoh.Encoding(codec.encoding_of(type(msg))))
 
     result: dict[str, subprocess.CompletedProcess[str]] = {}
+    echo: subprocess.Popen[str] | None = None
     project = re.sub(r"[^a-z0-9_-]", "", f"fixstream-secure-{os.getpid()}-{tmp_path.name[-12:].lower()}")
     t0 = time.monotonic()
     with docker_api() as host:
@@ -402,6 +403,16 @@ def test_secure_containers_record_every_estimator_and_refuse_what_is_not_theirs(
             assert status.returncode == 0, status.stderr
             answered = {(b["service"], b["instance"]) for b in map(json.loads, status.stdout.splitlines())}
             assert {f"fixstream/alive/{s}/{i}" for s, i in answered} >= set(DEMO_TOKENS), answered
+            # fixstream echo from the host too: it sees the run's markers (it has several seconds to subscribe:
+            # the attacks below come first, and the player starts only at the gate)
+            echo = subprocess.Popen(
+                fixstream_cmd("echo", "fixstream/scenario/demo", "--count", "2", "--timeout", "600"),
+                env=client_env,
+                cwd=REPO,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
 
             # no certificate, or not over TLS: no session at all
             tcp = f"tcp/127.0.0.1:{port}"
@@ -437,12 +448,21 @@ def test_secure_containers_record_every_estimator_and_refuse_what_is_not_theirs(
             runner.join(timeout=900)
             gate_token.undeclare()
             player.close()
+            if echo is not None:
+                try:
+                    echoed, echo_err = echo.communicate(timeout=60)
+                finally:
+                    echo.kill()
+
     wall = time.monotonic() - t0
     proc = result["up"]
     out = proc.stdout + proc.stderr
     assert proc.returncode == 0, out[-5000:]
     assert re.search(r"player_1\s+\|\s+demo: published \d+ messages", out), out[-3000:]
     assert not forged_token_seen
+    assert echo is not None and echo.returncode == 0, echo_err
+    assert [ln.split()[0] for ln in echoed.splitlines()] == ["fixstream/scenario/demo"] * 2, echoed
+    assert ['"event":"start"' in ln.replace(" ", "") for ln in echoed.splitlines()] == [True, False], echoed
 
     ours = recording(recordings)
     for topic in DEMO_OUTPUTS:
