@@ -4,6 +4,7 @@ asks every queryable for its answer."""
 from __future__ import annotations
 
 import json
+import os
 import socket
 
 import zenoh
@@ -48,6 +49,8 @@ def _insert_tls(cfg: zenoh.Config, settings: ZenohSettings) -> None:
     for path in (settings.tls_root_ca, settings.tls_cert, settings.tls_key):
         if not path.is_file():
             raise ConnectError(f"TLS file not found: {path}")
+        if not os.access(path, os.R_OK):  # else Zenoh reports only "no router reachable" after the connect timeout
+            raise ConnectError(f"TLS file not readable by this user (uid {os.getuid()}): {path}")
     tls = {
         "root_ca_certificate": str(settings.tls_root_ca),
         "enable_mtls": True,

@@ -43,6 +43,7 @@ CONTEXT = (
     "schemas",
     "shared",
     "services",
+    "tools",
     "scenarios",
 )
 _IGNORED = re.compile(r"(^|/)(__pycache__|\.mypy_cache|\.pytest_cache|[^/]*\.egg-info)(/|$)|\.py[co]$|\.mcap$")

@@ -37,6 +37,7 @@ from services.player.selection import PLAYER_KEYS, KeySelection
 from shared import codec
 from shared.session import open_session
 from shared.settings import ZenohSettings
+from tools.stack.pki import ROUTER_ACL
 
 pytestmark = pytest.mark.e2e
 
@@ -176,7 +177,7 @@ def test_replay_selects_keys_and_leaves_foxglove_channels_out_quietly(router: st
 
 def test_default_replay_keys_are_what_the_secure_router_lets_the_player_write() -> None:
     """The replay's default set and the player's write permission in the router's access control are one list."""
-    acl = (REPO / "config" / "zenoh" / "router-secure.json5").read_text()
+    acl = ROUTER_ACL.read_text()
     rule = acl[acl.index('id: "player_feeds"') :]
     rule = rule[rule.index("key_exprs: [") + len("key_exprs: [") :]
     rule = rule[: rule.index("]")]

@@ -15,6 +15,7 @@ two runs. Nothing inside a message is excluded: estimators take their time from 
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -28,14 +29,18 @@ from typing import Any
 
 import pytest
 import yaml
-from conftest import REPO, fixstream_cmd
+from conftest import REPO, fixstream_cmd, wait_until
+from samples_lbl_nav import EXAMPLES
 
 from shared.mcap_io import decode_record, decode_rejected, is_rejected, iter_records
 from shared.session import free_tcp_port
+from tools.stack.pki import IDENTITIES, ROUTER_ACL, Pki, make_pki
+from tools.stack.plan import FIXSTREAM_ARGV, identity_of
 from tools.stack.readiness import port_open
 
 COMPOSE = REPO / "compose.yaml"
 ROUTER_OVERRIDE = REPO / "compose.fixstream-router.yaml"
+SECURE_OVERRIDE = REPO / "compose.secure.yaml"
 #: one output stream per service of the demo stack: each must have answered in the container run
 DEMO_OUTPUTS = (
     "fixstream/fix/terrain/tan1",
@@ -154,6 +159,44 @@ def test_router_override_runs_the_project_image() -> None:
     assert router["ports"] == compose_config(COMPOSE)["services"]["router"]["ports"]
 
 
+def test_secure_override_gives_every_service_its_own_identity_over_tls_and_nothing_more() -> None:
+    """compose.secure.yaml on top of the router override, as docker-compose merges it: the router on tls/ with the
+    access control mounted read-only, every other service connecting over TLS with the certificate of the identity
+    ``fixstream up --secure`` gives the same command (:func:`tools.stack.plan.identity_of`), and each container
+    holding the CA and its own certificate and key only, read-only, from ``$FIXSTREAM_PKI``."""
+    pki = "/srv/fixstream-pki"
+    services = compose_config(COMPOSE, ROUTER_OVERRIDE, SECURE_OVERRIDE, FIXSTREAM_PKI=pki)["services"]
+    assert sorted(services) == sorted(compose_config(COMPOSE)["services"])  # the override adds no service
+
+    def mounts(svc: dict[str, Any]) -> dict[str, tuple[str, str]]:
+        """target -> (host source, mode)"""
+        return {target: (source, mode) for source, target, mode in (v.split(":") for v in svc.get("volumes", []))}
+
+    used: set[str] = set()
+    for name, svc in services.items():
+        env = svc["environment"]
+        if name == "router":
+            identity = "router"
+            argv = svc["command"]
+            assert argv[:4] == ["fixstream", "router", "--listen", "tls/0.0.0.0:7447"], argv
+            acl = argv[argv.index("--config") + 1]
+            source, mode = mounts(svc)[acl]
+            assert Path(source) == ROUTER_ACL and mode == "ro"
+            assert svc["ports"] == ["127.0.0.1:7447:7447/tcp"]  # still loopback only
+        else:
+            identity = identity_of([*FIXSTREAM_ARGV, *svc["command"][1:]])
+            assert identity != "client", name  # every service writes something: a read-only identity would stall it
+            assert env["FIXSTREAM_ZENOH_CONNECT"] == "tls/router:7447", name
+        used.add(identity)
+        files = {
+            env[f"FIXSTREAM_ZENOH_TLS_{v}"]: f
+            for v, f in (("ROOT_CA", "ca.pem"), ("CERT", f"{identity}.pem"), ("KEY", f"{identity}.key"))
+        }
+        pki_mounts = {t: sm for t, sm in mounts(svc).items() if sm[0].startswith(pki + "/")}
+        assert pki_mounts == {target: (f"{pki}/{file}", "ro") for target, file in files.items()}, name
+    assert used == set(IDENTITIES) - {"client"}  # every identity the access control knows runs somewhere
+
+
 # ----- the real thing ---------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def images() -> Iterator[str]:
@@ -244,6 +287,203 @@ def test_container_run_records_what_fixstream_up_records(images: str, tmp_path: 
         assert ours.get(topic), f"{topic}: nothing recorded in the container run"
     assert_same_recording(ours, reference.result())
     print(f"compose run {wall:.1f} s; {sum(len(c) for c in ours.values())} messages on {len(ours)} channels")
+
+
+#: the liveliness tokens of the demo stack's services (compose.yaml's instances)
+DEMO_TOKENS = (
+    "fixstream/alive/recorder/main",
+    "fixstream/alive/terrain_nav/tan1",
+    "fixstream/alive/pcl_tracker/rx1-fm",
+    "fixstream/alive/pcl_tracker/rx1-dvbt",
+    "fixstream/alive/attitude/r1",
+    "fixstream/alive/lbl_nav/lbl1",
+    "fixstream/alive/coordinator/group1",
+    "fixstream/alive/rd_nav/auv3",
+    "fixstream/alive/rd_nav/auv4",
+)
+#: the router's Zenoh log filter that shows access-control decisions (docs/stack.md: denials are trace only)
+ACL_LOG_FILTER = "zenoh::net::routing::interceptor::access_control=trace"
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+
+def _container_readable_keys(pki: Pki) -> None:
+    """The services run as uid 10001 (docs/stack.md, "Keys"): their keys are theirs; the client's stays the host's."""
+    for name in IDENTITIES:
+        if name != "client":
+            key = pki.identity(name).key
+            if os.geteuid() == 0:
+                os.chown(key, 10001, 10001)
+            else:
+                key.chmod(0o644)
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(1800)
+def test_secure_containers_record_every_estimator_and_refuse_what_is_not_theirs(images: str, tmp_path: Path) -> None:
+    """The demo under compose.secure.yaml. From the host, while the stack runs: the ``client`` identity reads
+    (liveliness, ``fixstream status``) but its forged fix, end marker and liveliness token are dropped by the router
+    and logged there as denied; no certificate, or plain tcp, gets no session; the ``player`` identity's probe on a
+    sensor key does arrive (the positive control: the recorder was listening when the forgeries were sent). The
+    player waits for a token the test declares last (``--wait-for player/probe``), so all of this happens before the
+    scenario is played, whatever the machine's speed."""
+    import zenoh
+    from container_support import compose_up, docker_api
+
+    from schemas import Depth, Header, ScenarioMarker
+    from schemas.lbl_nav import LblFix
+    from shared import codec
+    from shared.errors import ConnectError
+    from shared.session import open_session
+    from shared.settings import ZenohSettings
+
+    pki = make_pki(tmp_path / "pki")
+    _container_readable_keys(pki)
+    gate = tmp_path / "compose.gate.yaml"
+    gate.write_text(
+        "services:\n  player:\n    command: [fixstream, play, scenarios/demo.yaml, --rate, '0', --wait-for,"
+        " recorder/main, --wait-for, player/probe, --wait-timeout, '600']\n"
+    )
+    recordings = _writable_dir(tmp_path / "containers")
+    port = free_tcp_port()
+    endpoint = f"tls/127.0.0.1:{port}"
+    env = clean_env(
+        FIXSTREAM_IMAGE=images,
+        FIXSTREAM_RECORDINGS=str(recordings),
+        FIXSTREAM_ROUTER_PORT=str(port),
+        FIXSTREAM_PKI=str(pki.directory),
+        FIXSTREAM_ROUTER_RUST_LOG=ACL_LOG_FILTER,
+    )
+    client = pki.identity("client")
+    client_env = {
+        **clean_env(),
+        "FIXSTREAM_ZENOH_CONNECT": endpoint,
+        "FIXSTREAM_ZENOH_TLS_ROOT_CA": str(pki.ca),
+        "FIXSTREAM_ZENOH_TLS_CERT": str(client.cert),
+        "FIXSTREAM_ZENOH_TLS_KEY": str(client.key),
+    }
+
+    def session(identity: str | None, where: str = endpoint) -> zenoh.Session:
+        tls = {}
+        if identity is not None:
+            ident = pki.identity(identity)
+            tls = {"tls_root_ca": pki.ca, "tls_cert": ident.cert, "tls_key": ident.key}
+        return open_session(ZenohSettings(mode="client", connect=[where], connect_timeout_s=2, **tls))
+
+    def put(s: zenoh.Session, key: str, msg: Any, source: str) -> None:
+        data = codec.encode_stamped(msg, source, 0)
+        s.put(key, data, encoding=zenoh.Encoding(codec.encoding_of(type(msg))))
+
+    result: dict[str, subprocess.CompletedProcess[str]] = {}
+    echo: subprocess.Popen[str] | None = None
+    project = re.sub(r"[^a-z0-9_-]", "", f"fixstream-secure-{os.getpid()}-{tmp_path.name[-12:].lower()}")
+    t0 = time.monotonic()
+    with docker_api() as host:
+        files = (COMPOSE, ROUTER_OVERRIDE, SECURE_OVERRIDE, gate)
+        runner = threading.Thread(target=lambda: result.update(up=compose_up(project, files, env, host)), daemon=True)
+        runner.start()
+        assert wait_until(lambda: port_open(port) or not runner.is_alive(), timeout=600), "router never listened"
+        player = session("player")
+        reader = session("client")
+        try:
+
+            def tokens() -> set[str]:
+                replies = reader.liveliness().get("fixstream/alive/**", timeout=2)
+                return {str(r.ok.key_expr) for r in replies if r.ok}
+
+            assert wait_until(lambda: set(DEMO_TOKENS) <= tokens(), timeout=600, interval=1), tokens()
+            started = time.monotonic() - t0
+            status = subprocess.run(
+                fixstream_cmd("status", "--json", "--timeout", "5"),
+                env=client_env,
+                cwd=REPO,
+                capture_output=True,
+                text=True,
+                timeout=120,
+            )
+            assert status.returncode == 0, status.stderr
+            answered = {(b["service"], b["instance"]) for b in map(json.loads, status.stdout.splitlines())}
+            assert {f"fixstream/alive/{s}/{i}" for s, i in answered} >= set(DEMO_TOKENS), answered
+            # fixstream echo from the host too: it sees the run's markers (it has several seconds to subscribe:
+            # the attacks below come first, and the player starts only at the gate)
+            echo = subprocess.Popen(
+                fixstream_cmd("echo", "fixstream/scenario/demo", "--count", "2", "--timeout", "600"),
+                env=client_env,
+                cwd=REPO,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+
+            # no certificate, or not over TLS: no session at all
+            tcp = f"tcp/127.0.0.1:{port}"
+            for identity, where in ((None, endpoint), (None, tcp), ("client", tcp)):
+                with pytest.raises(ConnectError, match="no Zenoh router reachable"):
+                    session(identity, where).close()
+            # the client identity impersonates lbl_nav and the player
+            forged_fix = LblFix.model_validate(
+                EXAMPLES["LblFix"].model_dump() | {"header": Header(stamp_ns=4_242_424_242)}
+            )
+            end = ScenarioMarker(header=Header(stamp_ns=1), event="end", scenario="demo", seed=0)
+            evil = session("client")
+            try:
+                put(evil, "fixstream/fix/lbl/lbl1", forged_fix, "lbl_nav/lbl1")
+                put(evil, "fixstream/scenario/demo", end, "player/default")
+                token = evil.liveliness().declare_token("fixstream/alive/lbl_nav/forged")
+                time.sleep(1.0)
+                forged_token_seen = "fixstream/alive/lbl_nav/forged" in tokens()
+                token.undeclare()
+            finally:
+                evil.close()
+            put(
+                player,
+                "fixstream/sensor/probe/depth/d0",
+                Depth(header=Header(stamp_ns=7), depth_m=-4.2),
+                "player/probe",
+            )
+            time.sleep(1.0)
+        finally:
+            reader.close()
+            # the player may start now (held until the run is over: a dropped token is undeclared at once)
+            gate_token = player.liveliness().declare_token("fixstream/alive/player/probe")
+            runner.join(timeout=900)
+            gate_token.undeclare()
+            player.close()
+            if echo is not None:
+                try:
+                    echoed, echo_err = echo.communicate(timeout=60)
+                finally:
+                    echo.kill()
+
+    wall = time.monotonic() - t0
+    proc = result["up"]
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out[-5000:]
+    assert re.search(r"player_1\s+\|\s+demo: published \d+ messages", out), out[-3000:]
+    assert not forged_token_seen
+    assert echo is not None and echo.returncode == 0, echo_err
+    assert [ln.split()[0] for ln in echoed.splitlines()] == ["fixstream/scenario/demo"] * 2, echoed
+    assert ['"event":"start"' in ln.replace(" ", "") for ln in echoed.splitlines()] == [True, False], echoed
+
+    ours = recording(recordings)
+    for topic in DEMO_OUTPUTS:
+        assert ours.get(topic), f"{topic}: nothing recorded in the secure container run"
+    ends = [m for *_, m in ours["fixstream/scenario/demo"] if m.event == "end"]
+    assert len(ends) == 1 and ends[0].published  # the player's own, not the forgery (which announced nothing)
+    # the positive control arrived, once; the forgeries neither as messages nor as payloads kept as rejected
+    probes = [(m.header.source, m.depth_m) for *_, m in ours.get("fixstream/sensor/probe/depth/d0", [])]
+    assert probes == [("player/probe", -4.2)]
+    assert not [m for *_, m in ours["fixstream/fix/lbl/lbl1"] if m.header.stamp_ns == forged_fix.header.stamp_ns]
+    assert [m.event for *_, m in ours["fixstream/scenario/demo"]] == ["start", "end"]
+    assert not {"fixstream/rejected/fixstream/fix/lbl/lbl1", "fixstream/rejected/fixstream/scenario/demo"} & set(ours)
+
+    log = [_ANSI.sub("", ln) for ln in out.splitlines() if ln.startswith("router_1")]
+    decision = r"CertCommonName\(client\).* is (un)?authorized to Put \(ingress\) on fixstream/fix/lbl/lbl1$"
+    verdicts = [m.group(1) for ln in log if (m := re.search(decision, ln))]
+    assert verdicts and all(v == "un" for v in verdicts), verdicts[:5]  # denied, and logged so
+    print(
+        f"secure compose run {wall:.1f} s (services up after {started:.1f} s); router log {len(log)} lines at"
+        f" {ACL_LOG_FILTER}; {sum(len(c) for c in ours.values())} messages on {len(ours)} channels"
+    )
 
 
 @pytest.mark.e2e

@@ -1,6 +1,6 @@
 """The secure stack over real TLS on loopback: who may publish what is the router's job (architecture rule 10).
 
-A router with the repository's access control (config/zenoh/router-secure.json5), services with the identities of
+A router with the repository's access control (tools/stack/router-secure.json5), services with the identities of
 their roles, and a client holding a valid certificate of the read-only ``client`` identity (or of another
 estimator) that tries every impersonation issue 14 names: a fix, a grant, an end marker, a liveliness token. None
 reaches a service or the recording; the genuine publishers' messages do (the positive control); a process with no

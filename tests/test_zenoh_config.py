@@ -10,6 +10,8 @@ test ``test_compose_e2e`` counts every scan of the demo in the recording and fai
 from __future__ import annotations
 
 import json
+import os
+from pathlib import Path
 
 import pytest
 import yaml
@@ -38,3 +40,21 @@ def test_compose_router_has_no_shared_memory_and_waits_for_slow_links() -> None:
     cfgs = [command[i + 1] for i, arg in enumerate(command) if arg == "--cfg"]
     assert "transport/shared_memory/enabled:false" in cfgs
     assert "transport/link/tx/queue/congestion_control/block/wait_before_close:60000000" in cfgs
+
+
+def test_an_unreadable_tls_key_is_named_before_zenoh_tries(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A key the process cannot read (compose.secure.yaml's services run as uid 10001; `fixstream pki` writes keys
+    0600 for whoever ran it) fails at once with its path, not as "no router reachable" after the connect timeout.
+    Unreadability is simulated: this suite may run as root, who reads every file."""
+    from shared.errors import ConnectError
+    from tools.stack.pki import make_pki
+
+    pki = make_pki(tmp_path / "pki", identities=("lbl_nav",))
+    ident = pki.identity("lbl_nav")
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode: Path(p) != ident.key and real_access(p, mode))
+    settings = ZenohSettings(connect=["tls/127.0.0.1:1"], tls_root_ca=pki.ca, tls_cert=ident.cert, tls_key=ident.key)
+    with pytest.raises(ConnectError, match=f"TLS file not readable by this user .*: {ident.key}$"):
+        zenoh_config(settings)
+    monkeypatch.setattr(os, "access", real_access)
+    zenoh_config(settings)  # readable: the same settings make a configuration

@@ -5,7 +5,7 @@ services answered (fixes, tracks, diagnostics, the coordinator's decisions). Rep
 inputs make the services compute their answers again; republishing the recorded answers as well would put two
 sets of fixes side by side on the same keys. So by default a replay republishes only :data:`PLAYER_KEYS`, the keys
 a player publishes (the same set the secure router lets the ``player`` identity write,
-``config/zenoh/router-secure.json5``); ``--all`` replays every key, ``--keys`` names the key expressions to
+``tools/stack/router-secure.json5``); ``--all`` replays every key, ``--keys`` names the key expressions to
 replay instead, ``--exclude`` removes key expressions from either.
 
 A payload the recorder kept as rejected (channel ``fixstream/rejected/<key>``) is selected by its original key,

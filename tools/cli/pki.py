@@ -4,7 +4,9 @@ Writes ``DIR/ca.pem`` and ``DIR/<identity>.pem`` + ``.key`` for every identity t
 (router, player, recorder, coordinator, attitude, lbl_nav, pcl_tracker, rd_nav, terrain_nav, client). A process
 uses its identity with ``FIXSTREAM_ZENOH_TLS_ROOT_CA=DIR/ca.pem FIXSTREAM_ZENOH_TLS_CERT=DIR/<identity>.pem
 FIXSTREAM_ZENOH_TLS_KEY=DIR/<identity>.key`` and a ``tls/HOST:PORT`` endpoint; the router runs with
-``fixstream router --listen tls/0.0.0.0:7447 --config config/zenoh/router-secure.json5`` and its own identity.
+``fixstream router --listen tls/0.0.0.0:7447 --config ACL`` and its own identity, ACL being the access control
+installed with fixstream (``tools/stack/router-secure.json5``; the command prints its installed path).
+Containers: ``compose.secure.yaml`` (docs/stack.md).
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import sys
 
-    from ..stack.pki import IDENTITIES, make_pki
+    from ..stack.pki import IDENTITIES, ROUTER_ACL, make_pki
     from . import exit_codes
 
     if args.days < 1:
@@ -33,4 +35,5 @@ def run(args: argparse.Namespace) -> int:
         print(f"fixstream pki: {args.directory}: {exc.strerror or exc}", file=sys.stderr)
         return exit_codes.USAGE
     print(f"wrote {pki.ca} and certificates for {', '.join(IDENTITIES)} in {pki.directory}")
+    print(f"the router's access control: {ROUTER_ACL}")
     return 0

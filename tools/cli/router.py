@@ -26,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--config",
         type=Path,
-        help="a Zenoh JSON5 configuration to start from (e.g. config/zenoh/router-secure.json5: access control);"
+        help="a Zenoh JSON5 configuration to start from (e.g. tools/stack/router-secure.json5: access control);"
         " default: $FIXSTREAM_ZENOH_CONFIG_FILE",
     )
     parser.add_argument(

@@ -49,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--secure",
         action="store_true",
         help="run over mutual TLS with a certificate per identity (made for this run) and the router's access control"
-        " (config/zenoh/router-secure.json5): only the player feeds sensors and markers, only an estimator writes its"
+        " (tools/stack/router-secure.json5): only the player feeds sensors and markers, only an estimator writes its"
         " fixes; clients started with no flags attach read-only",
     )
     parser.add_argument("--dry-run", action="store_true", help="print the local commands and exit")

@@ -2,7 +2,7 @@
 ``fixstream up --secure``).
 
 Every process of the secure stack proves who it is with a certificate whose common name is its identity; the
-router's access-control rules (``config/zenoh/router-secure.json5``) say which identity may publish on which keys.
+router's access-control rules (``tools/stack/router-secure.json5``) say which identity may publish on which keys.
 Identities are roles, not instances: ``player``, ``recorder``, ``coordinator``, one per estimator kind
 (``attitude``, ``lbl_nav``, ``pcl_tracker``, ``rd_nav``, ``terrain_nav``) and ``client`` (read only: echo, status,
 the Foxglove bridge). The router's certificate names the hosts clients reach it by (``localhost``, ``router``
@@ -38,8 +38,9 @@ IDENTITIES = (
     "client",
 )
 ROUTER_HOSTS = ("localhost", "router", "127.0.0.1", "::1")
-#: the router's access-control configuration kept in the repository
-ROUTER_ACL = Path(__file__).resolve().parents[2] / "config" / "zenoh" / "router-secure.json5"
+#: the router's access-control configuration: package data beside this module (pyproject.toml), so it resolves the
+#: same in a checkout, an editable install, a wheel and the image (``fixstream pki`` prints where it is)
+ROUTER_ACL = Path(__file__).resolve().with_name("router-secure.json5")
 
 
 @dataclass(frozen=True)
