@@ -51,6 +51,17 @@ def zenoh_encoding(encoding: str) -> zenoh.Encoding:
     return enc
 
 
+_ZENOH_ENCODING_OF: dict[type[Message], zenoh.Encoding] = {}
+
+
+def zenoh_encoding_of(model: type[Message]) -> zenoh.Encoding:
+    """``zenoh_encoding(encoding_of(model))`` in one lookup (every publish)."""
+    enc = _ZENOH_ENCODING_OF.get(model)
+    if enc is None:
+        enc = _ZENOH_ENCODING_OF[model] = zenoh_encoding(encoding_of(model))
+    return enc
+
+
 def encode(msg: Message) -> bytes:
     """msgpack bytes of ``msg`` (plain dicts, lists, str, int, float, bool, None).
 

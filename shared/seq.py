@@ -31,6 +31,11 @@ class SeqCheck:
     expected: int = 0
 
 
+#: the outcomes without figures, built once (the check runs for every sample of every service)
+IN_ORDER = SeqCheck("in_order")
+_FIRST = SeqCheck("first")
+
+
 class SeqTracker:
     """Per-(key, source) sequence checks; :attr:`lost` counts transport gaps only."""
 
@@ -48,11 +53,11 @@ class SeqTracker:
         if last is None:
             if len(self._last) > self.max_pairs:
                 self._last.popitem(last=False)
-            return SeqCheck("first")
+            return _FIRST
         self._last.move_to_end(pair)
         expected = last + 1
         if seq == expected:
-            return SeqCheck("in_order")
+            return IN_ORDER
         if seq > expected:
             missing = seq - expected
             if missing <= self.max_gap:
