@@ -117,7 +117,7 @@ def _cpu_s(pid: int) -> float:
 
 def _row(endpoint: str, tmp: Path, mode: str, rate: float) -> dict[str, Any]:
     py = [sys.executable, "-c"]
-    out_dir = tmp / f"rec-{mode}"
+    out_dir = tmp / f"rec-{mode}-{rate:.0f}"  # one directory per row: two DROP rows must not count each other
     env = dict(
         os.environ,
         FIXSTREAM_ZENOH_MODE="client",
