@@ -4,15 +4,18 @@ file that describes itself (metadata, the scenario as an attachment, ``fixstream
 from __future__ import annotations
 
 import json
+import re
 import subprocess
+import time
 from collections import Counter
 from pathlib import Path
 from typing import Any
 
 import pytest
 import yaml
-from conftest import REPO, fixstream_cmd
+from conftest import REPO, fixstream_cmd, wait_until
 from recorder_support import recorder
+from test_player_zenoh import Collector
 from test_scenario_files import nav_scenario
 
 from services.player.scenario import parse_scenario
@@ -38,7 +41,7 @@ def _record_run(router: str, tmp_path: Path, scenario: Path, rate: str, instance
             timeout=120,
         )
         assert done.returncode == 0, done.stderr
-        rec.wait_status(lambda s: s["services_seen"] >= 1 and s["runs"] == {"clock": 1})
+        rec.wait_status(lambda s: s["services_seen"] >= 1 and s["runs"] == {scenario.stem: 1})
         rec.wait_status(lambda s: s["counters"]["received"] >= _expected_total(scenario))
         rec.terminate()
     (path,) = recording_files(rec.out_dir)
@@ -100,3 +103,42 @@ def test_rate_0_and_rate_5_record_one_data_clock_timeline(router: str, tmp_path:
     as_json = subprocess.run(fixstream_cmd("info", "--json", str(fast.path)), cwd=REPO, capture_output=True, text=True)
     doc = json.loads(as_json.stdout)
     assert doc["state"] == "finalised" and doc["messages"] == fast.messages
+
+
+def test_a_recording_at_rate_0_replays_at_rate_1_in_the_scenario_duration(router: str, tmp_path: Path) -> None:
+    """Recorded as fast as possible, replayed at ``--rate 1``: from the first to the last message a subscriber
+    receives, the wall time is the data-clock duration (the player's stamps, computed in-process) within 5 %, and
+    so is the time the player reports."""
+    scen_dir = tmp_path / "scenarios"
+    scen_dir.mkdir()
+    scenario = scen_dir / "paced.yaml"
+    scenario.write_text(yaml.safe_dump(nav_scenario(name="paced", duration_s=6.0), sort_keys=False))
+    expected = _expected(scenario)
+    duration_s = (max(la for _, _, la in expected.values()) - min(f for _, f, _ in expected.values())) / 1e9
+    path = _record_run(router, tmp_path, scenario, "0", "r0")
+    assert (scan(path).end_ns - scan(path).start_ns) / 1e9 == duration_s  # the file's timeline is the data clock
+
+    collector = Collector(router)
+    try:
+        time.sleep(0.3)  # the subscription reaches the router before the player starts
+        done = subprocess.run(
+            fixstream_cmd("play", str(path), "--rate", "1", "--connect", router, "--linger", "0.3"),
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert done.returncode == 0, done.stderr
+        n = sum(count for count, _, _ in expected.values())
+        assert wait_until(lambda: len(collector.samples) >= n, timeout=10), (len(collector.samples), n)
+        arrivals = [t for key, _, _, t in collector.samples if not key.startswith(f"{keys.ROOT}/diag/")]
+    finally:
+        collector.close()
+    assert len(arrivals) == n
+    wall_s = arrivals[-1] - arrivals[0]
+    reported = re.search(r" in (\d+\.\d+) s", done.stdout)
+    assert reported is not None, done.stdout
+    reported_s = float(reported.group(1))
+    print(f"\ndata clock {duration_s:.3f} s, subscriber {wall_s:.3f} s, player {reported_s:.2f} s")
+    assert abs(wall_s - duration_s) <= 0.05 * duration_s, (wall_s, duration_s)
+    assert abs(reported_s - duration_s) <= 0.05 * duration_s, (reported_s, duration_s)
