@@ -29,6 +29,11 @@ def chunk(value: str) -> str:
 
 
 #: a settings or parameter field holding one key chunk (validated by :func:`chunk`)
+def is_chunk(value: str) -> bool:
+    """True if ``value`` is a valid key chunk (:func:`chunk` would accept it)."""
+    return _CHUNK.match(value) is not None
+
+
 Chunk = Annotated[str, AfterValidator(chunk)]
 
 

@@ -189,3 +189,26 @@ def test_protocol_never_raises_and_names_the_input() -> None:
     assert ans.rejected is not None and ans.rejected.reason == "not_docked"
     assert ans.reply.rejected == "not_docked" and ans.reply.input_key == "k/x" and ans.reply.epoch == 0
     assert ans.decisions == [] and ans.reply.header.stamp_ns == bad.header.stamp_ns
+
+
+def test_a_vehicle_id_that_cannot_name_a_key_is_refused_before_it_enters_the_registry() -> None:
+    """Found by the 20,000-payload fuzz campaign: a DOCKED status from ``"not this"`` (a valid string, not a key
+    chunk) entered the registry, and the grant later decided for it could not be keyed (an internal error)."""
+    svc = make_service()
+    st = uplink_key(GROUP, "auv1", "status")
+    nodes = uplink_key(GROUP, "base", "nodes")
+    _, events = demo()
+    table = next(e.msg for e in events if e.key == nodes)
+    items = [
+        raw(nodes, table),
+        *(raw(st, _status(1.0 + i, f"auv{i + 1}", "DOCKED", f"n{i + 1}", seq=i)) for i in range(3)),
+        raw(st, _status(5.0, "not this", "DOCKED", "n1", seq=3)),
+        raw(st, _status(6.0, "auv1", "SERVICE_DONE", seq=4)),
+        raw(st, _status(7.0, "not this", "SERVICE_DONE", seq=5)),
+    ]
+    offline_on_bytes(svc, items)
+    assert svc.counters.rejected_by_reason == Counter({"invalid_auv_id": 2})
+    assert "not this" not in svc.protocol.core.vehicles
+    for o in svc.outbox:  # every decision it published is keyed by a vehicle it knows
+        if isinstance(o.msg, DepartureGrant):
+            assert o.msg.auv_id in {"auv1", "auv2", "auv3"} and o.key.endswith(o.msg.auv_id)

@@ -117,14 +117,6 @@ def output_key(site_id: str, target_id: str) -> str:
     return keys.fix(ESTIMATOR, site_id, target_id)
 
 
-def _chunk_ok(value: str) -> bool:
-    try:
-        keys.chunk(value)
-    except ValueError:
-        return False
-    return True
-
-
 class AttitudeSettings(ServiceSettings, AttitudeConfig):
     """``FIXSTREAM_ATTITUDE_*``: every :class:`AttitudeConfig` parameter (digest §5.2 defaults), one variable each
     (``FIXSTREAM_ATTITUDE_RADAR=Vostok3D``, ``FIXSTREAM_ATTITUDE_SIGMA_JERK_MPS3=[0.3, 0.3, 0.3]``), plus the
@@ -189,7 +181,7 @@ class AttitudeService(Service):
             want = "nothing (unknown key)" if expected is None else expected.__name__
             raise InputRejected("unexpected_type", f"{type(msg).__name__} on {key}; this key carries {want}")
         assert isinstance(msg, RadarPlot | RadarSite | TrackEnd)
-        if isinstance(msg, RadarPlot) and not _chunk_ok(msg.target_id):
+        if isinstance(msg, RadarPlot) and not keys.is_chunk(msg.target_id):
             raise InputRejected("invalid_target_id", f"target id {msg.target_id!r} is not a key chunk")
         produced = self.core.step(msg)  # InputRejected propagates: the base counts and reports it
         if isinstance(msg, TrackEnd):

@@ -27,6 +27,7 @@ import numpy as np
 from schemas import AcousticArrival, BeaconTable, Header, Message
 from schemas.rd_nav import BeaconAssignment, DepartureGrant, VehicleStatus
 from shared.errors import InputRejected
+from shared.keys import is_chunk
 
 from .config import CoordinatorConfig
 from .registry import DOCKED_STATES, F64, VehicleRecord, route_points
@@ -109,7 +110,12 @@ class CoordinatorCore:
         raise InputRejected("unknown_node", f"{auv_id}: node {node_id!r} is not in the node table")
 
     def _check_status(self, msg: VehicleStatus) -> F64 | None:
-        """Refusals of a status (raised before any state change); the dock position of DOCKED / AT_BASE."""
+        """Refusals of a status (raised before any state change); the dock position of DOCKED / AT_BASE.
+
+        The vehicle's id names its keys (its grant, its fixes): one that is not a key chunk is refused here, before it
+        can enter the registry and a decision that could never be published."""
+        if not is_chunk(msg.auv_id):
+            raise InputRejected("invalid_auv_id", f"vehicle id {msg.auv_id!r} is not a key chunk")
         ev = msg.event
         if ev in ("DOCKED", "AT_BASE"):
             return self._node(msg.node_id, msg.auv_id, base=ev == "AT_BASE")
