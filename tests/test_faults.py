@@ -1,6 +1,7 @@
 """Faults over real processes: a fuzz campaign against the whole estimator stack, and a service too busy to keep up.
 
-The campaign (issue 14's acceptance, small-N here; ``bench/bench_fuzz.py`` runs 20,000 payloads per service):
+The campaign (issue 14's acceptance, small-N here; ``FIXSTREAM_FUZZ_N=20000 pytest tests/test_faults.py -k campaign``
+runs the full 20,000 payloads per service):
 every estimator of compose.yaml runs under ``fixstream up`` behind one router; one client puts hostile payloads
 (tests/hostile_payloads.py) on each service's input keys inside a player run of its own; then the real player
 plays the demo scenario to the recorder. Every service must still be alive, its counters must equal what was sent
