@@ -329,6 +329,24 @@ class Service:
             stamp_ns=stamp_ns,
         )
 
+    def count_event(
+        self,
+        events: Counter[str],
+        key: str,
+        reason: str,
+        detail: str = "",
+        *,
+        n: int = 1,
+        level: Literal["info", "warning", "error"] = "warning",
+        stamp_ns: int = 0,
+        report: bool = True,
+    ) -> None:
+        """Count an event the service noticed in an input it took (not a refusal) in ``events``, and report it on the
+        diag key with the running counts (unless ``report`` is False: counted only)."""
+        events[reason] += n
+        if report:
+            self.report(key, reason, detail, count=events[reason], counts=dict(events), level=level, stamp_ns=stamp_ns)
+
     def report(
         self,
         key: str,

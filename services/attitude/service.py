@@ -189,7 +189,8 @@ class AttitudeService(Service):
         elif isinstance(msg, RadarPlot) and msg.target_id not in self._targets:
             self._targets[msg.target_id] = _TargetInfo(output_key(self.site_id, msg.target_id))
             if not any("TRACK_ID_REUSED" in e.flags for e in produced):  # reported as track_id_reused
-                self._event(key, "new_target", f"{msg.target_id}: first plot at {msg.header.stamp_ns} ns", "info", msg)
+                detail = f"{msg.target_id}: first plot at {msg.header.stamp_ns} ns"
+                self._event(key, "new_target", detail, "info", msg.header.stamp_ns)
         out = [self._output(key, est) for est in produced]
         self._check_evictions(key, msg.header.stamp_ns)
         return out
@@ -232,7 +233,9 @@ class AttitudeService(Service):
         if flags:  # events are counted always, reported if report_events
             for flag, (reason, level) in _FLAG_EVENTS.items():
                 if flag in flags:
-                    self._event(key, reason, f"{tid}: {est.status} at {est.header.stamp_ns} ns", level, est)
+                    self._event(
+                        key, reason, f"{tid}: {est.status} at {est.header.stamp_ns} ns", level, est.header.stamp_ns
+                    )
             if previous is not None and est.n_updates >= self.core_config.min_updates_valid:
                 for flag, reason in _UNDEFINED_EVENTS.items():
                     rising = flag in flags and flag not in previous and reason not in info.reported
@@ -240,29 +243,18 @@ class AttitudeService(Service):
                         info.reported.add(reason)
                         speed = "?" if est.speed_mps is None else f"{est.speed_mps:.1f}"
                         self._event(
-                            key, reason, f"{tid}: speed {speed} m/s at {est.header.stamp_ns} ns", "warning", est
+                            key,
+                            reason,
+                            f"{tid}: speed {speed} m/s at {est.header.stamp_ns} ns",
+                            "warning",
+                            est.header.stamp_ns,
                         )
         return Output(info.key, est)
 
-    def _event(
-        self,
-        key: str,
-        reason: str,
-        detail: str,
-        level: Literal["info", "warning"],
-        msg: RadarPlot | AttitudeEstimate,
-    ) -> None:
-        self.events[reason] += 1
-        if self.config.report_events:
-            self.report(
-                key,
-                reason,
-                detail,
-                count=self.events[reason],
-                counts=dict(self.events),
-                level=level,
-                stamp_ns=msg.header.stamp_ns,
-            )
+    def _event(self, key: str, reason: str, detail: str, level: Literal["info", "warning"], stamp_ns: int) -> None:
+        self.count_event(
+            self.events, key, reason, detail, level=level, stamp_ns=stamp_ns, report=self.config.report_events
+        )
 
     def _check_evictions(self, key: str, stamp_ns: int) -> None:
         """Report targets the core evicted for idleness (they disappeared without a TrackEnd)."""

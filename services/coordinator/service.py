@@ -131,18 +131,14 @@ class CoordinatorService(Service):
                 self.decisions["grant"] += 1
         if self.config.reply:
             out.append(Output(reply_key(self.group), answer.reply))
+        core = self.protocol.core
         for alarm, n in answer.alarms.items():
-            self.alarms[alarm] += n
-            if self.config.report_alarms:
-                self.report(
-                    key,
-                    alarm,
-                    f"{self.protocol.core.alarms[alarm]} so far; beacons {sorted(self.protocol.core.beacons())}",
-                    count=self.alarms[alarm],
-                    counts=dict(self.alarms),
-                    level=ALARM_LEVELS.get(alarm, "warning"),
-                    stamp_ns=msg.header.stamp_ns,
-                )
+            detail = f"{core.alarms[alarm]} so far; beacons {sorted(core.beacons())}"
+            level = ALARM_LEVELS.get(alarm, "warning")
+            stamp = msg.header.stamp_ns
+            self.count_event(
+                self.alarms, key, alarm, detail, n=n, level=level, stamp_ns=stamp, report=self.config.report_alarms
+            )
         if answer.rejected is not None:
             for o in out:  # the reply (and nothing else: a refused input decides nothing)
                 self.publish(o.key, o.msg)

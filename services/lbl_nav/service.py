@@ -194,11 +194,19 @@ class LblNavService(Service):
         ev = cast(LblEvent, m)
         self.outputs["events"] += 1
         name = (ev.reason or ev.kind) if ev.kind == "rejected" else ev.kind
-        self.events[name] += ev.count
-        level = _DIAG_EVENTS.get(ev.kind)
-        if level is not None:
-            detail = ev.detail if ev.kind == "rejected" or not ev.reason else f"{ev.reason}: {ev.detail}"
-            self._report(key, name, detail, level, ev.header.stamp_ns)
+        level = _DIAG_EVENTS.get(ev.kind)  # None: counted, not reported (launch, decision, merge)
+        detail = ev.detail if ev.kind == "rejected" or not ev.reason else f"{ev.reason}: {ev.detail}"
+        report = level is not None and self.config.report_events
+        self.count_event(
+            self.events,
+            key,
+            name,
+            detail,
+            n=ev.count,
+            level=level or "info",
+            stamp_ns=ev.header.stamp_ns,
+            report=report,
+        )
         return Output(self.event_key, ev)
 
     def _dr_gap(self, key: str, fix: LblFix) -> None:
@@ -207,25 +215,13 @@ class LblNavService(Service):
         self._degraded = fix.degraded
         if fix.degraded:
             self._gap_start_ns = stamp
-            self.events["dr_gap"] += 1
+            reason, level = "dr_gap", cast(Literal["info", "warning"], "warning")
             detail = f"no log or heading data for epoch {stamp} ns: values held, sigma_w inflated ({fix.status})"
-            self._report(key, "dr_gap", detail, "warning", stamp)
         else:
-            self.events["dr_restored"] += 1
-            gap_s = (stamp - self._gap_start_ns) / 1e9
-            self._report(key, "dr_restored", f"dead reckoning back after {gap_s:g} s of degraded epochs", "info", stamp)
-
-    def _report(self, key: str, reason: str, detail: str, level: Literal["info", "warning"], stamp_ns: int) -> None:
-        if self.config.report_events:
-            self.report(
-                key,
-                reason,
-                detail,
-                count=self.events[reason],
-                counts=dict(self.events),
-                level=level,
-                stamp_ns=stamp_ns,
-            )
+            reason, level = "dr_restored", cast(Literal["info", "warning"], "info")
+            detail = f"dead reckoning back after {(stamp - self._gap_start_ns) / 1e9:g} s of degraded epochs"
+        report = self.config.report_events
+        self.count_event(self.events, key, reason, detail, level=level, stamp_ns=stamp, report=report)
 
 
 def build() -> LblNavService:

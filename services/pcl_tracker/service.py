@@ -43,7 +43,7 @@ import os
 import time
 from collections import Counter
 from collections.abc import Iterable
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Literal
 
 from pydantic import ValidationError
 
@@ -272,17 +272,10 @@ class PclTrackerService(Service):
         return outputs
 
     # ----- diagnostics --------------------------------------------------------------------------
-    def _event(self, key: str, reason: str, detail: str, stamp_ns: int, level: str, n: int = 1) -> None:
-        self.scan_events[reason] += n
-        self.report(
-            key,
-            reason,
-            detail,
-            count=self.scan_events[reason],
-            counts=dict(self.scan_events),
-            level=level,  # type: ignore[arg-type]
-            stamp_ns=stamp_ns,
-        )
+    def _event(
+        self, key: str, reason: str, detail: str, stamp_ns: int, level: Literal["info", "warning"], n: int = 1
+    ) -> None:
+        self.count_event(self.scan_events, key, reason, detail, n=n, level=level, stamp_ns=stamp_ns)
 
     def _plot_rejections(self, key: str, reason: str, n: int, scan_id: int, stamp_ns: int) -> None:
         self.plots_rejected[reason] += n
@@ -294,7 +287,7 @@ class PclTrackerService(Service):
         for reason, n in rep.n_plots_rejected.items():
             self._plot_rejections(key, reason, n, sid, stamp)
         for flag, n in rep.n_plots_flagged.items():
-            level = "info" if flag in _PLOT_FLAGS_INFO else "warning"
+            level: Literal["info", "warning"] = "info" if flag in _PLOT_FLAGS_INFO else "warning"
             self._event(key, flag, f"scan {sid}: {n} plot(s) {flag}", stamp, level, n)
         for flag in rep.flags:
             if flag in _FLAGS_REPORTED_ELSEWHERE:

@@ -209,17 +209,10 @@ class RdNavService(Service):
             self._status = fix.status
 
     def _event(self, key: str, reason: str, detail: str, level: Literal["info", "warning"], msg: RdNavFix) -> None:
-        self.events[reason] += 1
-        if self.config.report_events:
-            self.report(
-                key,
-                reason,
-                detail,
-                count=self.events[reason],
-                counts=dict(self.events),
-                level=level,
-                stamp_ns=msg.header.stamp_ns,
-            )
+        stamp = msg.header.stamp_ns
+        self.count_event(
+            self.events, key, reason, detail, level=level, stamp_ns=stamp, report=self.config.report_events
+        )
 
 
 def build() -> RdNavService:

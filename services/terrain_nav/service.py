@@ -287,15 +287,7 @@ class TerrainNavService(Service):
         self.last_verdict = {"state": v.state, "stamp_ns": v.header.stamp_ns, "n_valid": v.n_valid}
         if v.state in ("GAP", "OUT_OF_ZONE"):
             reason = "ins_gap" if v.state == "GAP" else "out_of_zone"
-            self.events[reason] += 1
-            self.report(
-                key,
-                reason,
-                v.detail,
-                count=self.events[reason],
-                counts=dict(self.events),
-                stamp_ns=v.header.stamp_ns,
-            )
+            self.count_event(self.events, key, reason, v.detail, stamp_ns=v.header.stamp_ns)
         return Output(self.verdict_key, v)
 
     def _new_session(self, reason: str) -> list[Output]:
