@@ -220,6 +220,8 @@ class Service:
         self._pending_end: _PendingEnd | None = None
         #: ends of scenario runs: "complete" (every announced message arrived) or "incomplete"
         self.scenario_ends: Counter[str] = Counter()
+        #: fresh cores started so far, this one included (:meth:`new_run`)
+        self.sessions = 1
 
     # ----- to override ------------------------------------------------------------------------
     def subscriptions(self) -> list[Subscription]:
@@ -232,7 +234,22 @@ class Service:
 
     def on_scenario_end(self, marker: ScenarioMarker) -> Iterable[Output]:
         """Called once every message the player's end marker announced on this service's keys has arrived
-        (or could not be waited for any longer): flush buffered state."""
+        (or could not be waited for any longer): the run's last outputs (:meth:`flush_run`), then, with
+        ``reset_on_scenario_end`` (the default), a fresh core (:meth:`new_run`) for the next run."""
+        out = list(self.flush_run(marker))
+        if self.settings.reset_on_scenario_end:
+            out.extend(self.new_run(f"scenario {marker.scenario} ended"))
+        return out
+
+    def flush_run(self, marker: ScenarioMarker) -> Iterable[Output]:
+        """The outputs of what the core still holds at the end of a run (buffers, open epochs)."""
+        return ()
+
+    def new_run(self, reason: str) -> Iterable[Output]:
+        """Start a fresh core. Services replace their core, then call this (it counts :attr:`sessions` and logs);
+        the outputs announce the new session where a service has such a message."""
+        self.sessions += 1
+        log.info("%s: %s; fresh core (session %d)", self.source, reason, self.sessions)
         return ()
 
     def on_idle(self) -> Iterable[Output]:

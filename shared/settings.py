@@ -102,6 +102,11 @@ class ServiceSettings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="FIXSTREAM_", extra="ignore")
 
     instance: str = Field(default="default", description="instance name, the last chunk of its keys")
+    reset_on_scenario_end: bool = Field(
+        default=True,
+        description="start a fresh core (a new session) once the run the player's end marker announced has ended, so "
+        "the next run, whose stamps start again from 0, is accepted (estimators; the recorder has no core)",
+    )
     queue_size: int = Field(default=100_000, ge=1, description="inbound samples held before back-pressure")
     queue_max_bytes: int = Field(
         default=256 << 20, ge=1 << 16, description="inbound payload bytes held before back-pressure, bytes"

@@ -46,7 +46,7 @@ from typing import Any, ClassVar, Literal, cast
 from pydantic import Field, field_validator
 from pydantic_settings import SettingsConfigDict
 
-from schemas import Message, RadarPlot, RadarSite, ScenarioMarker, TrackEnd
+from schemas import Message, RadarPlot, RadarSite, TrackEnd
 from schemas.attitude import AttitudeEstimate
 from shared import keys
 from shared.service import InputRejected, Output, Service, Subscription
@@ -132,7 +132,6 @@ class AttitudeSettings(ServiceSettings, AttitudeConfig):
         "consumer validates each message on decode anyway",
     )
     sensor_id: str = Field(default="*", description="radar sensor id (last key chunk) to listen to, or *")
-    reset_on_scenario_end: bool = Field(default=True, description="start a fresh core after the player's end marker")
     report_events: bool = Field(default=True, description="report the events (resets, new targets, ...) on diag")
 
     @field_validator("sensor_id")
@@ -167,7 +166,6 @@ class AttitudeService(Service):
         self._evicted_seen = 0
         self.events: Counter[str] = Counter()
         self.outputs = 0
-        self.sessions = 1
 
     # ----- Service hooks ---------------------------------------------------------------------------------------
     def subscriptions(self) -> list[Subscription]:
@@ -195,15 +193,12 @@ class AttitudeService(Service):
         self._check_evictions(key, msg.header.stamp_ns)
         return out
 
-    def on_scenario_end(self, marker: ScenarioMarker) -> list[Output]:
-        """Every plot of the scenario has arrived (the base waits for them): start a fresh core."""
-        if self.config.reset_on_scenario_end:
-            self.core = AttitudeCore(self.core_config)
-            self._targets.clear()
-            self._evicted_seen = 0
-            self.sessions += 1
-            log.info("%s: scenario %s ended; fresh core (session %d)", self.source, marker.scenario, self.sessions)
-        return []
+    def new_run(self, reason: str) -> list[Output]:
+        """A fresh core for the next run (its plots' stamps start again from 0)."""
+        self.core = AttitudeCore(self.core_config)
+        self._targets.clear()
+        self._evicted_seen = 0
+        return list(super().new_run(reason))
 
     def status_extra(self) -> dict[str, Any]:
         sigmas, scan_period_s = self.core.site_parameters(self.site_id)

@@ -32,7 +32,7 @@ from typing import Any, ClassVar, Literal, cast
 from pydantic import Field
 from pydantic_settings import SettingsConfigDict
 
-from schemas import Message, ScenarioMarker
+from schemas import Message
 from schemas.rd_nav import BeaconAssignment, DepartureGrant
 from shared import keys
 from shared.service import Output, Service, Subscription
@@ -88,7 +88,6 @@ class CoordinatorSettings(ServiceSettings, CoordinatorConfig):
 
     group: keys.Chunk | None = Field(default=None, description="vehicle group (key chunk); None: the instance name")
     reply: bool = Field(default=True, description="publish a CoordinatorReply for every input (closed-loop runs)")
-    reset_on_scenario_end: bool = Field(default=True, description="start a fresh core after the player's end marker")
     report_alarms: bool = Field(default=True, description="report the core's alarms on diag")
 
     def core_config(self) -> CoordinatorConfig:
@@ -109,7 +108,6 @@ class CoordinatorService(Service):
         self.in_expr = uplink_expr(self.group)
         self.alarms: Counter[str] = Counter()
         self.decisions: Counter[str] = Counter()
-        self.sessions = 1
 
     # ----- Service hooks ---------------------------------------------------------------------------------------
     def subscriptions(self) -> list[Subscription]:
@@ -145,13 +143,10 @@ class CoordinatorService(Service):
             raise answer.rejected
         return out
 
-    def on_scenario_end(self, marker: ScenarioMarker) -> list[Output]:
-        """Every uplink message of the scenario has arrived (the base waits for them): start a fresh core."""
-        if self.config.reset_on_scenario_end:
-            self.protocol.reset()
-            self.sessions += 1
-            log.info("%s: scenario %s ended; fresh core (session %d)", self.source, marker.scenario, self.sessions)
-        return []
+    def new_run(self, reason: str) -> list[Output]:
+        """A fresh core for the next run."""
+        self.protocol.reset()
+        return list(super().new_run(reason))
 
     def status_extra(self) -> dict[str, Any]:
         core = self.protocol.core

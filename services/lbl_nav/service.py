@@ -110,7 +110,6 @@ class LblNavSettings(ServiceSettings, LblNavConfig):
         "in the service (a fifth of its CPU): the core symmetrises every covariance, the values are the same, and "
         "every consumer validates each message on decode",
     )
-    reset_on_scenario_end: bool = Field(default=True, description="start a fresh core after the player's end marker")
     report_events: bool = Field(default=True, description="report the core's problem events on diag")
 
     def core_config(self, vehicle: str) -> LblNavConfig:
@@ -134,7 +133,6 @@ class LblNavService(Service):
         self.event_key = event_key(self.vehicle)
         self.events: Counter[str] = Counter()
         self.outputs: Counter[str] = Counter()
-        self.sessions = 1
         self._degraded = False
         self._gap_start_ns = 0
         self.last_fix: dict[str, Any] | None = None
@@ -148,13 +146,15 @@ class LblNavService(Service):
         core (an ``InputRejected`` propagates: the base counts and reports it)."""
         return [self._output(key, m) for m in self.core.step(msg)]
 
-    def on_scenario_end(self, marker: ScenarioMarker) -> list[Output]:
-        """Every message of the scenario has arrived: close the open epochs, then (by default) a fresh core."""
-        out = [self._output(keys.scenario(marker.scenario), m) for m in self.core.flush()]
-        if self.config.reset_on_scenario_end:
-            self._new_core()
-            log.info("%s: scenario %s ended; fresh core (session %d)", self.source, marker.scenario, self.sessions)
-        return out
+    def flush_run(self, marker: ScenarioMarker) -> list[Output]:
+        """The open epochs of the run, closed."""
+        return [self._output(keys.scenario(marker.scenario), m) for m in self.core.flush()]
+
+    def new_run(self, reason: str) -> list[Output]:
+        """A fresh core for the next run."""
+        self.core = LblNavCore(self.core_config)
+        self._degraded = False
+        return list(super().new_run(reason))
 
     def on_stop(self) -> None:
         """Stopping: the open epochs are closed and published before the session closes."""
@@ -179,11 +179,6 @@ class LblNavService(Service):
         }
 
     # ----- internals -------------------------------------------------------------------------------------------
-    def _new_core(self) -> None:
-        self.core = LblNavCore(self.core_config)
-        self._degraded = False
-        self.sessions += 1
-
     def _output(self, key: str, m: Message) -> Output:
         if isinstance(m, LblFix):
             self.outputs["fixes"] += 1

@@ -42,7 +42,6 @@ import math
 import os
 import time
 from collections import Counter
-from collections.abc import Iterable
 from typing import Any, ClassVar, Literal
 
 from pydantic import ValidationError
@@ -151,16 +150,18 @@ class PclTrackerService(Service):
     def subscriptions(self) -> list[Subscription]:
         return [Subscription(self.in_key, self._on_input, accepts=INPUTS, salvage=self._salvage)]
 
-    def on_scenario_end(self, marker: ScenarioMarker) -> Iterable[Output]:
-        """Every scan of the run has arrived (the base waits for them): flush the reorder buffer, then start a
-        fresh tracker (ids keep increasing) for the next run."""
-        outputs = self._outputs(self.in_key, self.core.flush())
+    def flush_run(self, marker: ScenarioMarker) -> list[Output]:
+        """Every scan of the run has arrived (the base waits for them): flush the reorder buffer."""
+        return self._outputs(self.in_key, self.core.flush())
+
+    def new_run(self, reason: str) -> list[Output]:
+        """A fresh tracker for the next run (track ids keep increasing)."""
         next_id = self.core.next_track_id
         self.core = PclTracker(self.config)
         self.core.next_track_id = next_id
         self._dropped_by_scan.clear()
         self.resets += 1
-        return outputs
+        return list(super().new_run(reason))
 
     def on_stop(self) -> None:
         self._save_snapshot()

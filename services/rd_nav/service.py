@@ -49,7 +49,6 @@ from schemas import (
     Heading,
     Message,
     NavReset,
-    ScenarioMarker,
     SoundSpeed,
     SpeedLog,
 )
@@ -120,7 +119,6 @@ class RdNavSettings(ServiceSettings, RdNavConfig):
     )
     publish_ekf: bool = Field(default=True, description="publish the EKF shadow's fixes on .../ekf")
     publish_cycles: bool = Field(default=True, description="publish every TdoaCycle on .../cycle")
-    reset_on_scenario_end: bool = Field(default=True, description="start a fresh core after the player's end marker")
     report_events: bool = Field(default=True, description="report the filter's events on diag")
 
     def core_config(self, auv_id: str) -> RdNavConfig:
@@ -143,7 +141,6 @@ class RdNavService(Service):
         self.events: Counter[str] = Counter()
         self.outputs: Counter[str] = Counter()
         self._status: str | None = None
-        self.sessions = 1
 
     # ----- Service hooks ---------------------------------------------------------------------------------------
     def subscriptions(self) -> list[Subscription]:
@@ -164,14 +161,11 @@ class RdNavService(Service):
             out.append(Output(output_key(self.auv_id, m), m))
         return out
 
-    def on_scenario_end(self, marker: ScenarioMarker) -> list[Output]:
-        """Every message of the scenario on this vehicle's keys has arrived (the base waits for them): a fresh core."""
-        if self.config.reset_on_scenario_end:
-            self.core = RdNavCore(self.core_config)
-            self._status = None
-            self.sessions += 1
-            log.info("%s: scenario %s ended; fresh core (session %d)", self.source, marker.scenario, self.sessions)
-        return []
+    def new_run(self, reason: str) -> list[Output]:
+        """A fresh core for the next run (the vehicle's stamps start again from 0)."""
+        self.core = RdNavCore(self.core_config)
+        self._status = None
+        return list(super().new_run(reason))
 
     def status_extra(self) -> dict[str, Any]:
         core = self.core

@@ -90,7 +90,6 @@ class TerrainNavSettings(ServiceSettings):
     idle_flush_s: float = Field(
         default=2.0, ge=0.0, description="release the buffer after this much wall-clock quiet, s (0: never)"
     )
-    reset_on_scenario_end: bool = Field(default=True, description="start a new session at the player's end marker")
     core: TerrainNavConfig = Field(default_factory=TerrainNavConfig, description="the estimator's parameters")
 
     @field_validator("ins_sensor", "radalt_sensor", "baro_sensor", "reset_sensor")
@@ -193,7 +192,6 @@ class TerrainNavService(Service):
         self._last_input_wall = time.monotonic()
         self.events: Counter[str] = Counter()
         self.outputs: Counter[str] = Counter()
-        self.sessions = 1
         self.last_verdict: dict[str, Any] | None = None
 
     # ----- Service hooks ---------------------------------------------------------------------------------------
@@ -223,12 +221,9 @@ class TerrainNavService(Service):
             self.events["late"] += 1
         return self._release(self.buffer.pop_ready())
 
-    def on_scenario_end(self, marker: ScenarioMarker) -> list[Output]:
-        """Every message of the scenario has arrived: release the buffer, then (by default) a new session."""
-        out = self._release(self.buffer.drain())
-        if self.config.reset_on_scenario_end:
-            out.extend(self._new_session(f"scenario {marker.scenario} ended"))
-        return out
+    def flush_run(self, marker: ScenarioMarker) -> list[Output]:
+        """Every message of the scenario has arrived: release the buffer."""
+        return self._release(self.buffer.drain())
 
     def on_idle(self) -> list[Output]:
         """Wall-clock housekeeping: after ``idle_flush_s`` without input, release the buffer."""
@@ -290,15 +285,15 @@ class TerrainNavService(Service):
             self.count_event(self.events, key, reason, v.detail, stamp_ns=v.header.stamp_ns)
         return Output(self.verdict_key, v)
 
-    def _new_session(self, reason: str) -> list[Output]:
+    def new_run(self, reason: str) -> list[Output]:
+        """A new session for the next run, announced by a ``RESET`` verdict."""
         last_ns = self.buffer.released_ns or 0
         ev = Evaluation(t=last_ns * 1e-9, state="RESET", detail=reason[:256])
         verdict = self.nav.verdict_message(ev)
         self.nav = TerrainNavigator(self.ref_map, self.core_config, source=self.source)
         self.buffer.clear()
         self._last_stamp.clear()
-        self.sessions += 1
-        log.info("%s: %s; new session %d", self.source, reason, self.sessions)
+        super().new_run(reason)
         return [self._output("", verdict)]
 
 
