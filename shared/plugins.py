@@ -72,6 +72,9 @@ class Plugin:
     #: message type name (``type(msg).__name__``) -> ``module:function`` turning such a message into Foxglove
     #: estimates (:data:`ViewConverter`; the generic ``Truth``, ``Fix`` and ``Track`` need none)
     views: dict[str, str] = field(default_factory=dict)
+    #: those of its ``views`` types that carry any number of positions (a scan's tracks): their Foxglove map
+    #: channel is ``foxglove.LocationFixes`` (one schema per topic), the others' ``foxglove.LocationFix``
+    multi_views: frozenset[str] = frozenset()
     #: its section of ``fixstream report`` (None: its plain ``Fix``/``Track`` outputs get the generic one)
     report: ReportSection | None = None
 
@@ -101,6 +104,7 @@ def register(plugin: Plugin) -> None:
     """Add a plugin at run time (tests, notebooks): the same effect as an entry point, for this process."""
     plugins()[plugin.name] = plugin
     _views.clear()
+    multi_view_types.cache_clear()
 
 
 def plugin(name: str) -> Plugin:
@@ -136,6 +140,12 @@ def view_converter(type_name: str) -> ViewConverter | None:
     fn = resolve(owners[0][1]) if owners else None
     _views[type_name] = fn
     return fn
+
+
+@cache
+def multi_view_types() -> frozenset[str]:
+    """Every plugin's ``multi_views``: the message types whose map channel is ``foxglove.LocationFixes``."""
+    return frozenset(t for p in plugins().values() for t in p.multi_views)
 
 
 def report_sections() -> list[tuple[str, ReportSection]]:

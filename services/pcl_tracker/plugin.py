@@ -9,6 +9,7 @@ PLUGIN = Plugin(
     mc={"pcl_tracker": "services.pcl_tracker.mc"},
     summary="passive coherent locator tracker, one receiver-illuminator pair (digest 003)",
     views={"PclScanReport": "services.pcl_tracker.views:scan_report"},
+    multi_views=frozenset({"PclScanReport"}),
     # the plot module is tools-level (matplotlib, the report's data model): named, never imported, from here
     report=ReportSection("tools.report.plots.pcl_tracker", rank=40, cost=5, title="Passive coherent location tracker"),
 )

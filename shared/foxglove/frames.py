@@ -16,8 +16,9 @@ the scenario's, ``*_enu``    east, north, up (``pcl_enu``: the receiver, at 0)  
 anything else                taken as ENU                                            unchanged
 ==========================  ======================================================  =============================
 
-The radar sites' positions come from the scenario's ``attitude`` simulators (``site_position_m``); without a
-scenario they are taken at the origin. A covariance transforms with the same axis permutation and signs.
+The radar sites' positions come from the scenario's simulators whose parameters have a ``site_id`` and a
+``site_position_m`` (attitude's radars); without a scenario they are taken at the origin. A covariance
+transforms with the same axis permutation and signs.
 
 The report (:mod:`tools.report`) plots these estimates against truth; the Foxglove conversion
 (:mod:`shared.foxglove.convert`) draws them as scene entities and map fixes.
@@ -67,12 +68,11 @@ class FrameContext:
         if scenario is None:
             return cls()
         sites: dict[str, list[float]] = {}
-        for i, spec in enumerate(scenario.simulators):
-            if spec.kind == "attitude":
-                p = scenario.simulator_params(i)
-                site_id, pos = getattr(p, "site_id", None), getattr(p, "site_position_m", None)
-                if isinstance(site_id, str) and pos is not None:
-                    sites[site_id] = [float(v) for v in pos]
+        for i, _ in enumerate(scenario.simulators):
+            p = scenario.simulator_params(i)  # a radar site: any simulator with a site id and position
+            site_id, pos = getattr(p, "site_id", None), getattr(p, "site_position_m", None)
+            if isinstance(site_id, str) and pos is not None:
+                sites[site_id] = [float(v) for v in pos]
         return cls(scenario_frame=scenario.frame_id, sites=sites)
 
     def axes(self, frame_id: str) -> tuple[str, list[float]]:
