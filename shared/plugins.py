@@ -46,13 +46,15 @@ class ReportSection:
     object — never imports it. ``rank`` places the section on the page (lower first; the generic section of plain
     ``Fix``/``Track`` publishers comes after all of them); ``cost`` is a relative drawing time (higher is started
     first when the sections are drawn in parallel; it changes no output). ``title`` is the readable name of the
-    kind in the summary table.
+    kind in the summary table; ``paper`` names (``module:attribute``) the list of ``tools.report.paper.PaperFigure``
+    the run is scored against (None: "no paper figure").
     """
 
     module: str
     rank: int = 100
     cost: int = 0
     title: str = ""
+    paper: str | None = None
 
 
 @dataclass(frozen=True)

@@ -10,5 +10,11 @@ PLUGIN = Plugin(
     summary="aircraft heading, pitch and roll from radar plots (digest 004)",
     views={"AttitudeEstimate": "tools.foxglove_views.attitude:attitude_estimate"},
     # the plot module is tools-level (matplotlib, the report's data model): named, never imported, from here
-    report=ReportSection("tools.report.plots.attitude", rank=50, cost=4, title="Aircraft attitude from radar"),
+    report=ReportSection(
+        "tools.report.plots.attitude",
+        rank=50,
+        cost=4,
+        title="Aircraft attitude from radar",
+        paper="tools.report.paper:ATTITUDE",
+    ),
 )

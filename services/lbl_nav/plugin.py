@@ -10,5 +10,11 @@ PLUGIN = Plugin(
     summary="LBL navigation with no prior position and sparse beacons (digest 000)",
     views={"LblFix": "services.lbl_nav.views:lbl_fix"},
     # the plot module is tools-level (matplotlib, the report's data model): named, never imported, from here
-    report=ReportSection("tools.report.plots.lbl_nav", rank=20, cost=3, title="LBL navigation, sparse beacons"),
+    report=ReportSection(
+        "tools.report.plots.lbl_nav",
+        rank=20,
+        cost=3,
+        title="LBL navigation, sparse beacons",
+        paper="tools.report.paper:LBL_NAV",
+    ),
 )

@@ -11,5 +11,11 @@ PLUGIN = Plugin(
     views={"PclScanReport": "services.pcl_tracker.views:scan_report"},
     multi_views=frozenset({"PclScanReport"}),
     # the plot module is tools-level (matplotlib, the report's data model): named, never imported, from here
-    report=ReportSection("tools.report.plots.pcl_tracker", rank=40, cost=5, title="Passive coherent location tracker"),
+    report=ReportSection(
+        "tools.report.plots.pcl_tracker",
+        rank=40,
+        cost=5,
+        title="Passive coherent location tracker",
+        paper="tools.report.paper:PCL_TRACKER",
+    ),
 )

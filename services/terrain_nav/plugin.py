@@ -10,5 +10,11 @@ PLUGIN = Plugin(
     summary="terrain-aided navigation, recurrent search over a hypothesis grid (digest 001)",
     views={"TerrainFix": "services.terrain_nav.views:terrain_fix"},
     # the plot module is tools-level (matplotlib, the report's data model): named, never imported, from here
-    report=ReportSection("tools.report.plots.terrain_nav", rank=10, cost=2, title="Terrain-aided navigation"),
+    report=ReportSection(
+        "tools.report.plots.terrain_nav",
+        rank=10,
+        cost=2,
+        title="Terrain-aided navigation",
+        paper="tools.report.paper:TERRAIN_NAV",
+    ),
 )
