@@ -4,7 +4,9 @@
 simulator kind and an mc module, and a ``dist-info`` whose ``entry_points.txt`` holds the one line
 ``depth_mean = depth_mean.plugin:PLUGIN`` (what ``pyproject.toml`` gives the repository's estimators). With that
 directory on PYTHONPATH and nothing else changed: ``fixstream run depth_mean`` serves over a real router,
-``fixstream scenarios validate`` knows its simulator kind and ``fixstream mc`` computes its metrics.
+``fixstream scenarios validate`` knows its simulator kind, ``fixstream mc`` computes its metrics, the recorder's
+Foxglove channels draw its fixes (its ``views.py``) and ``fixstream report`` gives it a section (its
+``report.py``, ranked and titled by its plugin).
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from __future__ import annotations
 import json
 import os
 import subprocess
+import sys
 import textwrap
 from pathlib import Path
 
@@ -107,8 +110,38 @@ FILES = {
         def aggregate(per_run):
             return {"runs": len(per_run), "n": sum(r["n"] for r in per_run)}
         """,
+    "depth_mean/views.py": """
+        import numpy as np
+
+        from shared.foxglove.frames import Estimate
+
+
+        def depth_fix(key, msg, ctx):
+            if not key.startswith("fixstream/fix/depth_mean/"):
+                return []  # the sensor's depths are not estimates
+            instance = key.rsplit("/", 1)[1]
+            pos = np.array([0.0, 0.0, -msg.depth_m])
+            return [Estimate("fix", instance, instance, msg.header.stamp_ns, pos, label=f"mean {msg.depth_m:.2f} m")]
+        """,
+    "depth_mean/report.py": """
+        from schemas import Depth
+        from tools.report.plots.common import Section, new_figure, render
+
+
+        def build(data, metrics):
+            out = []
+            for src in data.sources("depth_mean"):
+                means = [ev.msg for ev in data.outputs[src] if isinstance(ev.msg, Depth)]
+                sec = Section("depth_mean", src.split("/", 1)[1], f"Depth mean — {src.split('/', 1)[1]}")
+                fig, axs = new_figure()
+                axs[0][0].plot([m.header.stamp_ns / 1e9 for m in means], [m.depth_m for m in means])
+                sec.figures.append(render(fig, "running mean of the depth", "m against s"))
+                sec.headline = {"messages": len(means), "last_mean_m": means[-1].depth_m if means else None}
+                out.append(sec)
+            return out
+        """,
     "depth_mean/plugin.py": """
-        from shared.plugins import Plugin
+        from shared.plugins import Plugin, ReportSection
 
         PLUGIN = Plugin(
             name="depth_mean",
@@ -116,6 +149,8 @@ FILES = {
             simulators={"depth_mean_sim": "depth_mean.simulator"},
             mc={"depth_mean": "depth_mean.mc"},
             summary="the mean depth so far: the smallest estimator there is",
+            views={"Depth": "depth_mean.views:depth_fix"},
+            report=ReportSection("depth_mean.report", rank=5, title="Running depth mean"),
         )
         """,
     "depth_mean-0.1.dist-info/METADATA": "Metadata-Version: 2.1\nName: depth_mean\nVersion: 0.1\n",
@@ -134,6 +169,31 @@ simulators:
     params: {platform: dm1, depth_m: 50.0, sigma_m: 0.5}
 estimators:
   - {kind: depth_mean, instance: dm1}
+"""
+
+
+#: records the example's run offline with the recorder's Foxglove channels, then reports on it
+RECORD_AND_REPORT = """
+import json, sys
+from pathlib import Path
+
+from services.player.scenario import load_scenario
+from shared.foxglove.convert import Converter
+from shared.foxglove.recording import FoxgloveChannels
+from tools.registry import load_service
+from tools.report import make_report
+from tools.report.offline import scenario_feed, write_recording
+
+scenario_path, out = sys.argv[1], Path(sys.argv[2])
+scenario = load_scenario(scenario_path)
+feed = scenario_feed(scenario)
+sensor = [(k, m) for k, m in feed if k.startswith("fixstream/sensor/dm1/") or k.startswith("fixstream/scenario/")]
+outputs = [(o.key, o.msg) for o in load_service("depth_mean").run_offline(sensor)]
+foxglove = FoxgloveChannels(Converter.for_scenario(scenario))
+(file,) = write_recording(out / "rec", feed, outputs, prefix="dm", foxglove=foxglove)
+make_report([file], out / "report", scenario=scenario_path, progress=False, workers=1)
+depths = [m.depth_m for k, m in feed if k == "fixstream/sensor/dm1/depth/d0"]
+(out / "run.json").write_text(json.dumps({"file": str(file), "depths": depths}))
 """
 
 
@@ -195,3 +255,41 @@ def test_the_example_service_runs_over_a_real_router(example: dict[str, str], ro
         client.close()
         proc.terminate()
         assert proc.wait(timeout=30) == 0
+
+
+def test_the_example_gets_foxglove_views_and_a_report_section(example: dict[str, str], tmp_path: Path) -> None:
+    from test_foxglove import foxglove_records
+
+    script = tmp_path / "record_and_report.py"
+    script.write_text(RECORD_AND_REPORT)
+    out = tmp_path / "out"
+    env = {**example, "FIXSTREAM_INSTANCE": "dm1"}
+    done = subprocess.run(
+        [sys.executable, str(script), str(tmp_path / "depth_mean_demo.yaml"), str(out)],
+        env=env,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    run = json.loads((out / "run.json").read_text())
+    depths = run["depths"]
+    assert len(depths) >= 19  # 20 s at 1 Hz
+    mean = sum(depths) / len(depths)  # what the last running mean must be, computed here
+    # Foxglove: one scene update per published mean, an entity at depth = the mean; nothing for the sensor key
+    scene = [(topic, msg) for topic, _, _, msg in foxglove_records(Path(run["file"])) if "depth" in topic]
+    assert {topic for topic, _ in scene} == {"/foxglove/scene/fix/depth_mean/dm1"}
+    assert len(scene) == len(depths)
+    (entity,) = scene[-1][1].entities
+    assert entity.id == "dm1"
+    assert entity.spheres[0].pose.position.z == pytest.approx(-mean, rel=1e-12)
+    # the report: the example's own section, placed by its rank, headline from its module, its title in the summary
+    metrics = json.loads((out / "report" / "metrics.json").read_text())
+    (section,) = [s for s in metrics["sections"] if s["kind"] == "depth_mean"]
+    assert section["instance"] == "dm1"
+    assert section["headline"]["messages"] == len(depths)
+    assert section["headline"]["last_mean_m"] == pytest.approx(mean, rel=1e-12)
+    page = (out / "report" / "index.html").read_text()
+    assert "Depth mean — dm1" in page and "Running depth mean" in page
+    assert "running mean of the depth" in page  # its figure

@@ -35,7 +35,7 @@ import pytest
 import yaml
 from conftest import REPO, fixstream_cmd
 
-from tools.report.paper import PAPER
+from tools.report.paper import paper_figures
 
 pytestmark = pytest.mark.e2e
 
@@ -204,7 +204,7 @@ def test_report_has_a_section_per_estimator_and_the_papers_figures(demo_run: dic
     assert "http://" not in page and "https://" not in page  # nothing to fetch: opens offline
     # a verdict per estimator against its paper, the figure in words (its digest section only in metrics.json)
     verdicts = report["verdicts"]
-    with_paper = {(s["kind"], s["instance"]) for s in report["sections"] if s["kind"] in PAPER}
+    with_paper = {(s["kind"], s["instance"]) for s in report["sections"] if s["kind"] in paper_figures()}
     assert {(v["kind"], v["instance"]) for v in verdicts} == with_paper
     assert {v["verdict"] for v in verdicts} <= {"pass", "outside", "not comparable", "no data"}
     summary = page[page.index("id='summary'") : page.index("id='s0'")]

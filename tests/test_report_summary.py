@@ -23,7 +23,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tools.report.html import label_and_unit, summary_table
-from tools.report.paper import NO_DATA, NOT_COMPARABLE, OUTSIDE, PAPER, PASS, verdicts
+from tools.report.paper import NO_DATA, NOT_COMPARABLE, OUTSIDE, PASS, paper_figures, verdicts
 from tools.report.plots.common import Section
 from tools.report.plots.plan import MIN_HALF_SPAN_M, PAD, plan_axes
 
@@ -90,7 +90,9 @@ def test_attitude_units_of_degrees_only_from_the_40th_contact() -> None:
 
 
 def test_the_summary_says_what_each_figure_is_in_words() -> None:
-    sections = [Section(kind, "i", kind) for kind in PAPER]
+    papers = paper_figures()
+    assert set(papers) == {"terrain_nav", "lbl_nav", "rd_nav", "pcl_tracker", "attitude"}  # each plugin names its own
+    sections = [Section(kind, "i", kind) for kind in papers]
     heads: dict[str, dict[str, Any]] = {
         "lbl_nav": {"decision_correct": True},
         "pcl_tracker": {"pos_rmse_second_half_m": 30.0},
@@ -99,7 +101,7 @@ def test_the_summary_says_what_each_figure_is_in_words() -> None:
     rows = [v for s in sections for v in verdicts(s.kind, s.instance, heads.get(s.kind, {}), None)]
     page = summary_table(sections, rows)
     assert "digest" not in page and "§" not in page  # the figures in words, their source only in metrics.json
-    for figure in PAPER.values():
+    for figure in papers.values():
         for f in figure:
             assert html.escape(f.what) in page and html.escape(f.paper) in page and f.source.startswith("digest 00")
     assert page.count("class='verdict v-pass'") == 3  # LBL decision, PCL position, the AUV

@@ -1,6 +1,6 @@
 """The plugin of this folder: what it offers the stack (shared.plugins; registered in pyproject.toml)."""
 
-from shared.plugins import Plugin
+from shared.plugins import Plugin, ReportSection
 
 PLUGIN = Plugin(
     name="attitude",
@@ -8,4 +8,13 @@ PLUGIN = Plugin(
     simulators={"attitude": "services.attitude.simulator"},
     mc={"attitude": "services.attitude.mc"},
     summary="aircraft heading, pitch and roll from radar plots (digest 004)",
+    views={"AttitudeEstimate": "tools.foxglove_views.attitude:attitude_estimate"},
+    # the plot module is tools-level (matplotlib, the report's data model): named, never imported, from here
+    report=ReportSection(
+        "tools.report.plots.attitude",
+        rank=50,
+        cost=4,
+        title="Aircraft attitude from radar",
+        paper="tools.report.paper:ATTITUDE",
+    ),
 )

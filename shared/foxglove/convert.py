@@ -9,15 +9,15 @@ truth, fixes, hypotheses, tracks — all brought into the scenario's ENU frame):
   (entity id = platform, target, ``track 12``, ``auv1/h2``; frame = the scenario's ``frame_id``) with a
   sphere at the position — for an estimate with a covariance, the **3σ ellipsoid**: axes along the
   covariance's eigenvectors (the pose's orientation), diameters 2·3·√λ (the size); for 2-D covariances the
-  vertical axis is nominal — and a text label. A PCL scan report replaces its tracks and deletes the dropped
-  ones;
+  vertical axis is nominal — and a text label. A message with ``tracks`` (a PCL scan report) replaces its
+  tracks and deletes the dropped ones;
 * ``/foxglove/location/<key>`` — ``foxglove.LocationFix`` (truth and fixes of one platform) or
-  ``foxglove.LocationFixes`` (a scan's tracks): latitude, longitude and altitude of the ENU position from the
-  scenario's geodetic ``origin``. The scenario frame is a flat local map, so north and east become arcs on the
-  WGS84 ellipsoid at the origin — Δφ = north / (M + h₀), Δλ = east / ((N + h₀) cos φ₀) with M, N the meridian
-  and prime-vertical radii — and the altitude is h₀ + up (a simulated aircraft at constant "up" flies at
-  constant altitude). Good to metres over tens of km. The ENU covariance goes with it (``Known``). Without an
-  origin there is no map channel.
+  ``foxglove.LocationFixes`` (``Track`` and the types a plugin lists in ``multi_views``: a scan's tracks):
+  latitude, longitude and altitude of the ENU position from the scenario's geodetic ``origin``. The scenario
+  frame is a flat local map, so north and east become arcs on the WGS84 ellipsoid at the origin —
+  Δφ = north / (M + h₀), Δλ = east / ((N + h₀) cos φ₀) with M, N the meridian and prime-vertical radii — and the
+  altitude is h₀ + up (a simulated aircraft at constant "up" flies at constant altitude). Good to metres over
+  tens of km. The ENU covariance goes with it (``Known``). Without an origin there is no map channel.
 
 ``<key>`` is the fixstream key without its ``fixstream/`` root (``/foxglove/scene/fix/terrain/tan1``).
 Timestamps are the messages' ``header.stamp_ns`` (the scenario clock).
@@ -41,6 +41,7 @@ import numpy as np
 
 from schemas import Message, ScenarioMarker
 from shared import keys
+from shared.plugins import multi_view_types
 
 from .frames import F64, Estimate, FrameContext, estimates_of
 
@@ -50,8 +51,9 @@ SCENE_PREFIX = "/foxglove/scene/"
 LOCATION_PREFIX = "/foxglove/location/"
 #: the ellipsoids are drawn at this many sigmas
 N_SIGMA = 3.0
-#: messages with any number of positions: their map channel is ``foxglove.LocationFixes`` (else ``LocationFix``)
-MULTI = frozenset({"PclScanReport", "Track"})
+#: generic messages with any number of positions: their map channel is ``foxglove.LocationFixes`` (else
+#: ``LocationFix``); an estimator's own such types are its plugin's ``multi_views``
+MULTI = frozenset({"Track"})
 #: sphere diameter of a truth sample or an estimate without covariance, m
 POINT_SIZE_M = 20.0
 
@@ -277,7 +279,8 @@ class Converter:
         ]
         if self.origin is not None:
             located = [e for e in ests if e.kind in ("truth", "fix", "track")]
-            if type(msg).__name__ in MULTI:  # one schema per topic: these always as LocationFixes
+            name = type(msg).__name__
+            if name in MULTI or name in multi_view_types():  # one schema per topic: these always as LocationFixes
                 fixes = LocationFixes(fixes=[_location(e, self.origin) for e in located])
                 out.append(Converted(LOCATION_PREFIX + rest, fixes))
             elif located:

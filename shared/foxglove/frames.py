@@ -16,8 +16,9 @@ the scenario's, ``*_enu``    east, north, up (``pcl_enu``: the receiver, at 0)  
 anything else                taken as ENU                                            unchanged
 ==========================  ======================================================  =============================
 
-The radar sites' positions come from the scenario's ``attitude`` simulators (``site_position_m``); without a
-scenario they are taken at the origin. A covariance transforms with the same axis permutation and signs.
+The radar sites' positions come from the scenario's simulators whose parameters have a ``site_id`` and a
+``site_position_m`` (attitude's radars); without a scenario they are taken at the origin. A covariance
+transforms with the same axis permutation and signs.
 
 The report (:mod:`tools.report`) plots these estimates against truth; the Foxglove conversion
 (:mod:`shared.foxglove.convert`) draws them as scene entities and map fixes.
@@ -33,6 +34,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from schemas import Fix, Message, Track, Truth
+
+from ..plugins import view_converter
 
 F64 = NDArray[np.float64]
 EstimateKind = Literal["truth", "fix", "hypothesis", "track"]
@@ -65,12 +68,11 @@ class FrameContext:
         if scenario is None:
             return cls()
         sites: dict[str, list[float]] = {}
-        for i, spec in enumerate(scenario.simulators):
-            if spec.kind == "attitude":
-                p = scenario.simulator_params(i)
-                site_id, pos = getattr(p, "site_id", None), getattr(p, "site_position_m", None)
-                if isinstance(site_id, str) and pos is not None:
-                    sites[site_id] = [float(v) for v in pos]
+        for i, _ in enumerate(scenario.simulators):
+            p = scenario.simulator_params(i)  # a radar site: any simulator with a site id and position
+            site_id, pos = getattr(p, "site_id", None), getattr(p, "site_position_m", None)
+            if isinstance(site_id, str) and pos is not None:
+                sites[site_id] = [float(v) for v in pos]
         return cls(scenario_frame=scenario.frame_id, sites=sites)
 
     def axes(self, frame_id: str) -> tuple[str, list[float]]:
@@ -137,7 +139,7 @@ class Estimate:
 NOMINAL_VERTICAL_VAR_M2 = 1.0
 
 
-def _cov2_enu(cov2: list[list[float]], north_first: bool) -> F64:
+def cov2_enu(cov2: list[list[float]], north_first: bool) -> F64:
     """A horizontal 2x2 covariance as 3x3 ENU (vertical nominal); ``north_first``: rows are (north, east)."""
     c = np.asarray(cov2, dtype=np.float64)
     if north_first:
@@ -149,9 +151,12 @@ def _cov2_enu(cov2: list[list[float]], north_first: bool) -> F64:
 
 
 def estimates_of(key: str, msg: Message, ctx: FrameContext) -> list[Estimate]:
-    """The positions a message carries, in scenario ENU (empty for messages that carry none)."""
+    """The positions a message carries, in scenario ENU (empty for messages that carry none).
+
+    ``Truth`` and the generic ``Fix`` and ``Track`` are converted here; an estimator's own output types by the
+    converter its plugin declares for the type name (``Plugin.views``, :func:`shared.plugins.view_converter`)."""
     name = type(msg).__name__
-    fn = _EXTRACTORS.get(name)
+    fn = _truth if name == "Truth" else view_converter(name)
     if fn is not None:
         return fn(key, msg, ctx)
     if isinstance(msg, Fix):
@@ -212,114 +217,4 @@ def _track(key: str, msg: Any, ctx: FrameContext) -> list[Estimate]:
     ]
 
 
-def _terrain_fix(key: str, msg: Any, ctx: FrameContext) -> list[Estimate]:
-    vehicle = key.split("/")[3] if key.count("/") >= 3 else "terrain"
-    pos = ctx.to_enu([msg.x_corr_m, msg.z_corr_m, msg.h_corr_m], "map")
-    cov = _cov2_enu(msg.cov_xz_m2, north_first=True)  # (x north, z east)
-    cov[2, 2] = max(float(msg.cov_vert[1][1]), 0.0)
-    return [
-        Estimate(
-            "fix",
-            vehicle,
-            vehicle,
-            msg.header.stamp_ns,
-            pos,
-            cov,
-            True,
-            label=f"fix ({msg.i_star},{msg.j_star})",
-            extra={"dx_m": msg.dx_m, "dz_m": msg.dz_m, "dh_m": msg.dh_m},
-        )
-    ]
-
-
-def _pcl_report(key: str, msg: Any, ctx: FrameContext) -> list[Estimate]:
-    f = msg.header.frame_id
-    out = []
-    for t in msg.tracks:
-        if t.status == "DROPPED":
-            continue
-        cov = np.asarray(t.cov_enu, dtype=np.float64)[:3, :3]
-        out.append(
-            Estimate(
-                "track",
-                f"track {t.track_id}",
-                None,
-                msg.header.stamp_ns,
-                ctx.to_enu(t.state_enu[:3], f),
-                ctx.cov_to_enu(cov, f),
-                t.status == "CONFIRMED",
-                label=f"{t.track_id} {t.status[0]}",
-                extra={"track_id": t.track_id, "status": t.status, "velocity": np.asarray(t.state_enu[3:])},
-            )
-        )
-    return out
-
-
-def _attitude(key: str, msg: Any, ctx: FrameContext) -> list[Estimate]:
-    if msg.state is None:
-        return []
-    f = msg.header.frame_id
-    x = msg.state
-    pos = ctx.to_enu([x[0], x[3], x[6]], f)
-    cov = None
-    if msg.state_cov is not None:
-        p = np.asarray(msg.state_cov, dtype=np.float64)[np.ix_([0, 3, 6], [0, 3, 6])]
-        cov = ctx.cov_to_enu(p, f)
-    label = f"{msg.target_id} ψ={msg.psi_deg:.0f}°" if msg.psi_deg is not None else msg.target_id
-    return [
-        Estimate("fix", msg.target_id, msg.target_id, msg.header.stamp_ns, pos, cov, msg.status == "VALID", label=label)
-    ]
-
-
-def _lbl_fix(key: str, msg: Any, ctx: FrameContext) -> list[Estimate]:
-    out: list[Estimate] = []
-    if msg.valid and msg.position_m is not None and msg.position_cov_m2 is not None:
-        cov = ctx.cov_to_enu(np.asarray(msg.position_cov_m2, dtype=np.float64), "", axes="en_depth")
-        pos = ctx.to_enu(msg.position_m, "", axes="en_depth")
-        out.append(Estimate("fix", msg.platform, msg.platform, msg.header.stamp_ns, pos, cov, True, label=msg.status))
-    for h in msg.hypotheses:
-        out.append(
-            Estimate(
-                "hypothesis",
-                f"{msg.platform}/h{h.hypothesis_id}",
-                msg.platform,
-                msg.header.stamp_ns,
-                ctx.to_enu(h.position_m, "", axes="en_depth"),
-                ctx.cov_to_enu(np.asarray(h.position_cov_m2, dtype=np.float64), "", axes="en_depth"),
-                not msg.valid,
-                label=f"h{h.hypothesis_id} p={h.probability:.3f}",
-                extra={"probability": h.probability, "hypothesis_id": h.hypothesis_id},
-            )
-        )
-    return out
-
-
-def _rd_fix(key: str, msg: Any, ctx: FrameContext) -> list[Estimate]:
-    pos = ctx.to_enu(msg.position_ned_m, "", axes="ned")
-    cov = _cov2_enu(msg.cov_xy_m2, north_first=True)  # (x north, y east)
-    return [
-        Estimate(
-            "fix",
-            msg.auv_id,
-            msg.auv_id,
-            msg.header.stamp_ns,
-            pos,
-            cov,
-            msg.valid,
-            horizontal_only=True,
-            label=f"{msg.estimator} {msg.status}",
-            extra={"estimator": msg.estimator, "kind": msg.kind, "cycle_status": msg.cycle_status},
-        )
-    ]
-
-
-_EXTRACTORS = {
-    "Truth": _truth,
-    "TerrainFix": _terrain_fix,
-    "PclScanReport": _pcl_report,
-    "AttitudeEstimate": _attitude,
-    "LblFix": _lbl_fix,
-    "RdNavFix": _rd_fix,
-}
-
-__all__ = ["NOMINAL_VERTICAL_VAR_M2", "Estimate", "FrameContext", "estimates_of"]
+__all__ = ["NOMINAL_VERTICAL_VAR_M2", "Estimate", "FrameContext", "cov2_enu", "estimates_of"]

@@ -7,8 +7,9 @@ Pipeline (one module each):
    truth in one frame (:mod:`shared.foxglove.frames`);
 3. :mod:`.metrics` — each estimator's ``fixstream mc`` plugin (``run_metrics``) on what it published, so the
    JSON equals ``fixstream mc`` for the same scenario, seed and run;
-4. :mod:`.plots` — one module per estimator: plan views (the scene and each track zoomed), error with ±3σ per
-   platform, NEES with its χ² band, and the estimator's own story; headline numbers;
+4. :mod:`.plots` — one module per estimator, named by its plugin (``Plugin.report``): plan views (the scene and
+   each track zoomed), error with ±3σ per platform, NEES with its χ² band, and the estimator's own story;
+   headline numbers;
 5. :mod:`.paper` — each headline against the figures the estimator's paper reports: pass / outside;
 6. :mod:`.html` — the page.
 
@@ -105,14 +106,14 @@ def _report(
     from .html import render_html
     from .metrics import plugin_metrics
     from .paper import verdicts
-    from .plots import section_modules
+    from .plots import section_names
 
     t = time.perf_counter()
     data = run_data(rec, scenario, scenarios_dir, carried)
     metrics = plugin_metrics(data)
     timings["metrics_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    names = [m.__name__ for m in section_modules()]
+    names = section_names()
     if progress:
         print(f"plotting {len(data.outputs)} publishers", file=sys.stderr, flush=True)
     sections: list[Any] = []
@@ -162,8 +163,6 @@ def _report(
 
 #: what the forked section workers read (set just before the pool forks)
 _SHARED: tuple[Any, Any] | None = None
-#: section modules, the slowest first (for a balanced pool)
-_COST_ORDER = ("pcl_tracker", "attitude", "lbl_nav", "terrain_nav", "rd_nav", "generic")
 
 
 def _build_one(name: str, data: Any = None, metrics: Any = None) -> tuple[list[Any], str | None]:
@@ -188,10 +187,10 @@ def _build_sections(
     n = min(workers or min(os.cpu_count() or 1, 4), len(names))
     if n <= 1 or "fork" not in multiprocessing.get_all_start_methods():
         return [_build_one(name, data, metrics) for name in names]
+    from .plots import drawing_order
+
     global _SHARED
-    order = sorted(
-        names, key=lambda m: _COST_ORDER.index(m.rsplit(".", 1)[-1]) if m.rsplit(".", 1)[-1] in _COST_ORDER else 0
-    )
+    order = drawing_order(names)
     _SHARED = (data, metrics)
     try:
         with multiprocessing.get_context("fork").Pool(n) as pool:

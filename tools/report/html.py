@@ -15,6 +15,7 @@ import json
 from typing import Any
 
 from shared.mcap_io import REJECTED_SCHEMA
+from shared.plugins import report_sections
 
 from .paper import NO_DATA, NOT_COMPARABLE, OUTSIDE, PASS, Verdict
 from .plots.common import Section
@@ -49,14 +50,11 @@ figcaption { font-size: 0.88em; color: #444; padding: 0.3em 0.6em; border-top: 1
 code { font-size: 0.9em; }
 """
 
-#: a readable name per estimator kind (the section titles say more)
-KIND_NAMES = {
-    "terrain_nav": "Terrain-aided navigation",
-    "lbl_nav": "LBL navigation, sparse beacons",
-    "rd_nav": "AUV group navigation (RD-LBL)",
-    "pcl_tracker": "Passive coherent location tracker",
-    "attitude": "Aircraft attitude from radar",
-}
+
+def kind_names() -> dict[str, str]:
+    """A readable name per estimator kind (``ReportSection.title`` of its plugin; the section titles say more)."""
+    return {name: sec.title for name, sec in report_sections() if sec.title}
+
 
 #: unit words in metric keys (``horizontal_error_rms_m``) and how the page writes them
 _UNITS = {"m": "m", "s": "s", "mps": "m/s", "deg": "°", "rad": "rad", "cells": "cells", "m2": "m²", "hz": "Hz"}
@@ -157,12 +155,13 @@ def summary_table(sections: list[Section], verdicts: list[Verdict]) -> str:
         "<table class='summary'><tr><th>estimator</th><th>what the paper reports</th><th>the paper's figure</th>"
         "<th>this run</th><th>verdict</th></tr>"
     ]
+    names = kind_names()
     for i, s in enumerate(sections):
         rows = [v for v in verdicts if v.kind == s.kind and v.instance == s.instance]
-        name = KIND_NAMES.get(s.kind, s.kind)
+        name = names.get(s.kind, s.kind)
         est = (
             f"<a href='#s{i}'>{e(name)}</a><br><span class='small'>{e(s.kind)} / {e(s.instance)}</span>"
-            if rows or s.kind in KIND_NAMES
+            if rows or s.kind in names
             else f"<a href='#s{i}'>{e(s.kind)}</a><br><span class='small'>{e(s.instance)}</span>"
         )
         if not rows:
@@ -251,8 +250,9 @@ def render_html(report: dict[str, Any], sections: list[Section], verdicts: list[
                 f"<div class='note'>{e(inst)} ({e(entry.get('kind', ''))}): {e(str(entry.get('status')))}</div>"
             )
     if sections:
+        names = kind_names()
         links = " · ".join(
-            f"<a href='#s{i}'>{e(KIND_NAMES.get(s.kind, s.kind))} {e(s.instance)}</a>" for i, s in enumerate(sections)
+            f"<a href='#s{i}'>{e(names.get(s.kind, s.kind))} {e(s.instance)}</a>" for i, s in enumerate(sections)
         )
         parts.append(f"<nav class='toc'>Sections: {links} · <a href='#diagnostics'>diagnostics</a></nav>")
     for i, s in enumerate(sections):
@@ -292,4 +292,4 @@ def render_html(report: dict[str, Any], sections: list[Section], verdicts: list[
     return "\n".join(parts)
 
 
-__all__ = ["KIND_NAMES", "fmt", "headline_table", "label_and_unit", "render_html", "summary_table"]
+__all__ = ["fmt", "headline_table", "label_and_unit", "render_html", "summary_table"]

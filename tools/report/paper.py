@@ -1,7 +1,8 @@
 """The papers' own figures (from the digests in ``../shared/seeds/``) and this run's verdict against each.
 
 Every estimator kind has the figures its paper reports as numbers, each with what it measures in words, the
-number as the paper states it, and a check of one run against it:
+number as the paper states it, and a check of one run against it (a list of :class:`PaperFigure` its plugin
+names, ``ReportSection.paper``; the repository's estimators' lists are here, one per kind):
 
 * ``pass`` — this run's number is within the paper's figure;
 * ``outside`` — it is not (one run of a different scenario can be outside a Monte-Carlo figure for good reasons:
@@ -20,6 +21,8 @@ import math
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from typing import Any
+
+from shared.plugins import report_sections, resolve
 
 PASS, OUTSIDE, NOT_COMPARABLE, NO_DATA = "pass", "outside", "not comparable", "no data"
 
@@ -181,80 +184,106 @@ def _attitude_los(head: dict[str, Any], m: dict[str, Any] | None) -> Iterator[tu
     yield "", f"{text} (RMS from contact {first})", PASS if worst < 10.0 else OUTSIDE, ""
 
 
-PAPER: dict[str, list[PaperFigure]] = {
-    "terrain_nav": [
-        PaperFigure(
-            "correction error of the modified algorithm (with the reliability conditions C1–C4), on both axes, in "
-            "map cells; the paper's simulation over SRTM terrain, cells of 125 m, a failure injected",
-            "≤ 1 cell (≤ 125 m)",
-            "digest 001 §3.2, Fig. 2",
-            _terrain_error,
-        ),
-    ],
-    "lbl_nav": [
-        PaperFigure(
-            "which of the two mirror hypotheses is accepted; the paper's Monte-Carlo: two beacons, track 10° to the "
-            "beacon line, 1500 runs",
-            "the true one in every run (0 of 1500 wrong)",
-            "digest 000 §3.1",
-            _lbl_decision,
-        ),
-        PaperFigure(
-            "time from launch to resolving the ambiguity; the paper's field data (towed body, 4 m/s)",
-            "4 s with buffered data, 16 s without",
-            "digest 000 §3.2",
-            _lbl_resolution,
-        ),
-        PaperFigure(
-            "RMS position error per axis after resolution; the paper's Monte-Carlo (Fig. 5 б, в)",
-            "within 0–20 m",
-            "digest 000 §3.1",
-            _lbl_rms,
-        ),
-    ],
-    "rd_nav": [
-        PaperFigure(
-            "particle-filter error per coordinate (signed: mean, standard deviation, largest absolute); the "
-            "paper's simulation: 4-h mission, three fixed beacons 2.9–3.0 km apart, 100 runs",
-            "mean ≤ 0.25 m, SD ≤ 0.75 m, max ≤ 2 m",
-            "digest 002 §5.1",
-            _rd_errors,
-        ),
-    ],
-    "pcl_tracker": [
-        PaperFigure(
-            "steady-state 3-D position RMSE of the tracks; the paper's simulation: one target at 200 m/s, no "
-            "clutter, every plot detected, 1000 runs",
-            "< 50 m",
-            "digest 003 §3.3",
-            _pcl_pos,
-        ),
-        PaperFigure(
-            "steady-state velocity RMSE of the tracks (same simulation)",
-            "1–2 m/s",
-            "digest 003 §3.3",
-            _pcl_vel,
-        ),
-    ],
-    "attitude": [
-        PaperFigure(
-            "RMS error of the line-of-sight angles (heading ψᴸ, pitch ϑᴸ, roll γᴸ) after about 40 radar contacts; "
-            "the paper's simulation: straight level flight from 100 km, 3074 runs (Fig. 3)",
-            "units of degrees (< 10°)",
-            "digest 004 §3.5",
-            _attitude_los,
-        ),
-    ],
-}
+#: terrain_nav's figures (named by its plugin: ``ReportSection(paper="tools.report.paper:TERRAIN_NAV")``)
+TERRAIN_NAV: list[PaperFigure] = [
+    PaperFigure(
+        "correction error of the modified algorithm (with the reliability conditions C1–C4), on both axes, in "
+        "map cells; the paper's simulation over SRTM terrain, cells of 125 m, a failure injected",
+        "≤ 1 cell (≤ 125 m)",
+        "digest 001 §3.2, Fig. 2",
+        _terrain_error,
+    ),
+]
+
+#: lbl_nav's figures (named by its plugin: ``ReportSection(paper="tools.report.paper:LBL_NAV")``)
+LBL_NAV: list[PaperFigure] = [
+    PaperFigure(
+        "which of the two mirror hypotheses is accepted; the paper's Monte-Carlo: two beacons, track 10° to the "
+        "beacon line, 1500 runs",
+        "the true one in every run (0 of 1500 wrong)",
+        "digest 000 §3.1",
+        _lbl_decision,
+    ),
+    PaperFigure(
+        "time from launch to resolving the ambiguity; the paper's field data (towed body, 4 m/s)",
+        "4 s with buffered data, 16 s without",
+        "digest 000 §3.2",
+        _lbl_resolution,
+    ),
+    PaperFigure(
+        "RMS position error per axis after resolution; the paper's Monte-Carlo (Fig. 5 б, в)",
+        "within 0–20 m",
+        "digest 000 §3.1",
+        _lbl_rms,
+    ),
+]
+
+#: rd_nav's figures (named by its plugin: ``ReportSection(paper="tools.report.paper:RD_NAV")``)
+RD_NAV: list[PaperFigure] = [
+    PaperFigure(
+        "particle-filter error per coordinate (signed: mean, standard deviation, largest absolute); the "
+        "paper's simulation: 4-h mission, three fixed beacons 2.9–3.0 km apart, 100 runs",
+        "mean ≤ 0.25 m, SD ≤ 0.75 m, max ≤ 2 m",
+        "digest 002 §5.1",
+        _rd_errors,
+    ),
+]
+
+#: pcl_tracker's figures (named by its plugin: ``ReportSection(paper="tools.report.paper:PCL_TRACKER")``)
+PCL_TRACKER: list[PaperFigure] = [
+    PaperFigure(
+        "steady-state 3-D position RMSE of the tracks; the paper's simulation: one target at 200 m/s, no "
+        "clutter, every plot detected, 1000 runs",
+        "< 50 m",
+        "digest 003 §3.3",
+        _pcl_pos,
+    ),
+    PaperFigure(
+        "steady-state velocity RMSE of the tracks (same simulation)",
+        "1–2 m/s",
+        "digest 003 §3.3",
+        _pcl_vel,
+    ),
+]
+
+#: attitude's figures (named by its plugin: ``ReportSection(paper="tools.report.paper:ATTITUDE")``)
+ATTITUDE: list[PaperFigure] = [
+    PaperFigure(
+        "RMS error of the line-of-sight angles (heading ψᴸ, pitch ϑᴸ, roll γᴸ) after about 40 radar contacts; "
+        "the paper's simulation: straight level flight from 100 km, 3074 runs (Fig. 3)",
+        "units of degrees (< 10°)",
+        "digest 004 §3.5",
+        _attitude_los,
+    ),
+]
+
+
+def paper_figures() -> dict[str, list[PaperFigure]]:
+    """The paper's figures of every estimator kind whose plugin names them (``ReportSection.paper``)."""
+    return {name: list(resolve(sec.paper)) for name, sec in report_sections() if sec.paper is not None}
 
 
 def verdicts(kind: str, instance: str, headline: dict[str, Any], metrics: dict[str, Any] | None) -> list[Verdict]:
     """This run against every figure of the kind's paper (empty for a kind without a paper)."""
     rows = []
-    for fig in PAPER.get(kind, []):
+    for fig in paper_figures().get(kind, []):
         for subject, this_run, verdict, note in fig.check(headline, metrics):
             rows.append(Verdict(kind, instance, subject, fig.what, fig.paper, this_run, verdict, note, fig.source))
     return rows
 
 
-__all__ = ["NOT_COMPARABLE", "NO_DATA", "OUTSIDE", "PAPER", "PASS", "PaperFigure", "Verdict", "verdicts"]
+__all__ = [
+    "ATTITUDE",
+    "LBL_NAV",
+    "NOT_COMPARABLE",
+    "NO_DATA",
+    "OUTSIDE",
+    "PASS",
+    "PCL_TRACKER",
+    "RD_NAV",
+    "TERRAIN_NAV",
+    "PaperFigure",
+    "Verdict",
+    "paper_figures",
+    "verdicts",
+]

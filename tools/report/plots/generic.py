@@ -1,8 +1,8 @@
 """Any other publisher of positions: the common ``Fix`` and ``Track`` models (``schemas/outputs.py``).
 
-A service not known to the report gets the standard figures — plan view, error with ±3σ, NEES — for its
-``Fix`` messages (against the truth of their ``platform``) and its ``Track`` s (plan view only: a track has no
-platform to compare with).
+A service without a section of its own (no ``Plugin.report``) gets the standard figures — plan view, error with
+±3σ, NEES — for its ``Fix`` messages (against the truth of their ``platform``) and its ``Track`` s (plan view
+only: a track has no platform to compare with).
 """
 
 from __future__ import annotations
@@ -14,17 +14,16 @@ import numpy as np
 from schemas import Fix, Track
 from shared.foxglove.frames import Estimate, estimates_of
 
+from . import own_section_services
 from .common import RunData, Section, error_series, standard_figures
-
-#: services with a section of their own (not drawn here)
-KNOWN = {"terrain_nav", "pcl_tracker", "attitude", "lbl_nav", "rd_nav", "coordinator", "recorder", "player"}
 
 
 def build(data: RunData, metrics: dict[str, dict[str, Any]]) -> list[Section]:
     out = []
+    known = own_section_services()
     for src in sorted(data.outputs):
         service = src.split("/", 1)[0]
-        if service in KNOWN:
+        if service in known:
             continue
         msgs = [(ev.key, ev.msg) for ev in data.outputs[src] if isinstance(ev.msg, Fix | Track)]
         if msgs:
