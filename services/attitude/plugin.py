@@ -8,7 +8,7 @@ PLUGIN = Plugin(
     simulators={"attitude": "services.attitude.simulator"},
     mc={"attitude": "services.attitude.mc"},
     summary="aircraft heading, pitch and roll from radar plots (digest 004)",
-    views={"AttitudeEstimate": "tools.foxglove_views.attitude:attitude_estimate"},
+    views={"AttitudeEstimate": "services.attitude.views:attitude_estimate"},
     # the plot module is tools-level (matplotlib, the report's data model): named, never imported, from here
     report=ReportSection(
         "tools.report.plots.attitude",

@@ -1,8 +1,7 @@
 """attitude's outputs as Foxglove estimates (``Plugin.views`` of services/attitude/plugin.py).
 
-Parked in tools while attitude's folder is being rewritten (issue 19): it imports only the runtime, so it moves
-to ``services/attitude/views.py`` unchanged. An ``AttitudeEstimate`` in the radar's NUE frame: position
-(x[0], x[3], x[6]) with the matching 3x3 block of ``state_cov``, valid when ``VALID``.
+An ``AttitudeEstimate`` in the radar's NUE frame: position (x[0], x[3], x[6]) with the matching 3x3 block of
+``state_cov``, valid when ``VALID``.
 """
 
 from __future__ import annotations

@@ -1,1 +1,0 @@
-"""Foxglove view converters of estimators whose folders cannot hold them yet (see each module)."""
