@@ -83,8 +83,8 @@ class Publisher:
         i = 0
         while not self.stop.is_set():
             for key, msg in ((TRUTH_KEY, truth(i)), (FIX_KEY, fix(i))):
+                self.sent[key].append(msg)  # remembered first: a reader may compare as soon as it is delivered
                 self.session.put(key, codec.encode(msg), encoding=zenoh.Encoding(codec.encoding_of(type(msg))))
-                self.sent[key].append(msg)
             i += 1
             self.stop.wait(0.05)
 
