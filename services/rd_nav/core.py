@@ -15,6 +15,12 @@ closed cycle, the PF estimate carried by DR to the latest sensor time, and perio
 Bad input raises :class:`shared.service.InputRejected` before any state change; the filter state stays
 finite with symmetric covariances.
 
+The filter step of a closed cycle (:meth:`RdNavCore._process_cycle`) is a short loop over components with one job
+each: :mod:`.gate` (prior moments, innovation, geometry check, NIS gate), :mod:`.rescue` (one late arrival),
+:mod:`.pf_update` (weights, regeneration, estimate and resampling), :mod:`.reinit_policy` (loss of lock),
+:mod:`.shadow` (the EKF), :mod:`.fixes` (the RdNavFix messages); :mod:`.starter` starts a filter without a start
+position and :mod:`.measurement` holds R (docs/rd_nav.md, "The filter step of one cycle").
+
 Time: every ``*_s`` time inside is seconds on the data clock (``header.stamp_ns``) relative to the first
 message seen; ``t_rx_local_s`` of the arrivals (receiver clock) is only used in differences.
 """
@@ -51,14 +57,15 @@ from .drift import J90, DriftModel, gm_path_var
 from .ekf import EkfShadow
 from .fixes import FilterState, FixBuilder, FixContent
 from .gate import CycleGate, Prior
-from .geometry import F64, crlb, in_window, jacobian_d, measurement_cov, multi_start_solutions
-from .initiation import Proposal, Reinitialiser, Snapshot
+from .geometry import F64, in_window
+from .initiation import Proposal
 from .measurement import MeasurementModel
 from .pf import ParticleFilter
 from .pf_update import PfUpdater
 from .reinit_policy import LossOfLock
 from .rescue import LateArrivalRescue
 from .shadow import ShadowUpdater
+from .starter import SnapshotStarter
 
 
 def _finite(*vals: float) -> bool:
@@ -75,9 +82,6 @@ class RdNavCore:
         self.asm = CycleAssembler(cfg)
         self.pf = ParticleFilter(cfg.n_particles, self.rng)
         self.ekf = EkfShadow()
-        self.starter = Reinitialiser(
-            cfg.reinit_k, cfg.reinit_consistency_m, math.inf, cfg.reinit_crlb_scale, cfg.reinit_extra_var_m2
-        )
         self.drift: DriftModel | None = None
         if cfg.process_model == "dr_errors":
             self.drift = DriftModel(
@@ -103,6 +107,7 @@ class RdNavCore:
         self.lock = LossOfLock(cfg, self.dr, self.gates[1], self.gates_typical)
         self.shadow = ShadowUpdater(cfg, self.ekf, self.model, self.gates)
         self.fixes = FixBuilder(cfg)
+        self.starter = SnapshotStarter(cfg, self.dr, self.model)
         self.counts: Counter[str] = Counter()  # rejected inputs and rejected cycles by reason
         self._t0_ns: int | None = None
         self._reset_state()
@@ -648,30 +653,11 @@ class RdNavCore:
         return None if self.drift is None else self.drift.prior_cov()
 
     def _try_snapshot_start(self, cd: CycleData) -> None:
-        """Without a start position: K consistent snapshot fixes start the filter (§4.5, [E])."""
-        if not self.cfg.init_from_snapshots or cd.d.size < 2:
+        """Without a start position: K consistent snapshot fixes start the filter (§4.5, [E]; starter.py)."""
+        start = self.starter.offer(cd)
+        if start is None:
             return
-        M = cd.d.size
-        zj = np.full(M, cd.depth)
-        R0 = measurement_cov(cd.s, cd.c, self.cfg.sigma_t_s, self.cfg.sigma_f_s, cd.sigma_c)
-        W = np.linalg.inv(R0)
-        sols = multi_start_solutions(cd.d, cd.leader, cd.followers, cd.delta, cd.depth, zj, W)
-        if sols.shape[0] == 0:
-            self.starter.record(None)
-            return
-        cen = np.vstack([cd.leader[None, :2], cd.followers[:, :2]]).mean(axis=0)
-        p = sols[int(np.argmin(np.hypot(*(sols - cen[None, :]).T)))]
-        H = jacobian_d(p.reshape(1, 2), cd.leader, cd.followers, cd.delta, cd.depth, zj)[0]
-        try:
-            P = crlb(H, self.measurement_cov(cd, p))
-        except np.linalg.LinAlgError:
-            self.starter.record(None)
-            return
-        b = self.dr.at(cd.t1)
-        self.starter.record(Snapshot(p=p, P_crlb=P, dr_xy=np.array([b.x_m, b.y_m])))
-        prop = self.starter.propose(None)
-        if prop is None:
-            return
+        prop, b = start
         self.pf.init_gaussian(prop.mean, prop.cov, self._error_cov())
         self.ekf.init(prop.mean, prop.cov, self._error_cov())
         self.initialised = True
