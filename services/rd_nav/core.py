@@ -15,6 +15,12 @@ closed cycle, the PF estimate carried by DR to the latest sensor time, and perio
 Bad input raises :class:`shared.service.InputRejected` before any state change; the filter state stays
 finite with symmetric covariances.
 
+The filter step of a closed cycle (:meth:`RdNavCore._process_cycle`) is a short loop over components with one job
+each: :mod:`.gate` (prior moments, innovation, geometry check, NIS gate), :mod:`.rescue` (one late arrival),
+:mod:`.pf_update` (weights, regeneration, estimate and resampling), :mod:`.reinit_policy` (loss of lock),
+:mod:`.shadow` (the EKF), :mod:`.fixes` (the RdNavFix messages); :mod:`.starter` starts a filter without a start
+position and :mod:`.measurement` holds R (docs/rd_nav.md, "The filter step of one cycle").
+
 Time: every ``*_s`` time inside is seconds on the data clock (``header.stamp_ns``) relative to the first
 message seen; ``t_rx_local_s`` of the arrivals (receiver clock) is only used in differences.
 """
@@ -23,8 +29,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from dataclasses import dataclass, replace
-from typing import Any
+from dataclasses import replace
 
 import numpy as np
 from scipy.stats import chi2
@@ -43,61 +48,24 @@ from schemas import (
 )
 from schemas.rd_nav import BeaconAssignment, FollowerObs, RdNavFix, TdoaCycle, VehicleStatus
 from shared.errors import InputRejected
-from shared.filters.covariance import is_positive_definite, symmetrize
 
 from .assembler import CycleAssembler, OpenCycle
 from .config import RdNavConfig
+from .cycle import CycleData, CycleOutcome
 from .dr import DeadReckoner, DrPoint
 from .drift import J90, DriftModel, gm_path_var
 from .ekf import EkfShadow
-from .geometry import (
-    F64,
-    crlb,
-    follower_units,
-    gauss_newton,
-    in_window,
-    jacobian_d,
-    measurement_cov,
-    motion_comp_cov,
-    multi_start_solutions,
-    node_cov_term,
-    predict_d,
-)
-from .initiation import Reinitialiser, Snapshot
+from .fixes import FilterState, FixBuilder, FixContent
+from .gate import CycleGate, Prior
+from .geometry import F64, in_window
+from .initiation import Proposal
+from .measurement import MeasurementModel
 from .pf import ParticleFilter
-
-
-@dataclass
-class CycleData:
-    """The numbers of one closed cycle, ready for the filters."""
-
-    oc: OpenCycle
-    t1: float
-    t1_stamp_ns: int
-    ids: list[str]
-    leader: F64
-    followers: F64  # (M, 3) valid followers
-    d: F64  # (M,)
-    s: F64  # (M,)
-    delta: F64  # (M, 2)
-    G: F64  # (M, 2, 3) how the DR error states move delta_j (drift.py), zeros without motion compensation
-    iv: F64  # (M,) variance of the trapezoid's error over each delta_j (velocity changes), m^2
-    dt: F64  # (M,) receiver-clock time from the leader arrival, s
-    tau: F64
-    pos_sigma: F64  # (M+1,) leader first
-    c: float
-    sigma_c: float
-    depth: float
-    msg: TdoaCycle
-    reject: str | None
-
-
-def _cond(H: F64) -> float:
-    """2-norm condition number of an M x 2 matrix from the eigenvalues of H^T H (closed form)."""
-    a, b, c = float(H[:, 0] @ H[:, 0]), float(H[:, 0] @ H[:, 1]), float(H[:, 1] @ H[:, 1])
-    mid, rad = 0.5 * (a + c), math.hypot(0.5 * (a - c), b)
-    lo = mid - rad
-    return math.sqrt((mid + rad) / lo) if lo > 0.0 else math.inf
+from .pf_update import PfUpdater
+from .reinit_policy import LossOfLock
+from .rescue import LateArrivalRescue
+from .shadow import ShadowUpdater
+from .starter import SnapshotStarter
 
 
 def _finite(*vals: float) -> bool:
@@ -114,19 +82,6 @@ class RdNavCore:
         self.asm = CycleAssembler(cfg)
         self.pf = ParticleFilter(cfg.n_particles, self.rng)
         self.ekf = EkfShadow()
-        self.reinit = Reinitialiser(
-            cfg.reinit_k,
-            cfg.reinit_consistency_m,
-            cfg.reinit_max_distance_m,
-            cfg.reinit_crlb_scale,
-            cfg.reinit_extra_var_m2,
-            cfg.reinit_k_same_outlier,
-            drift_mps=cfg.reinit_drift_sigma * math.sqrt(2.0) * cfg.sigma_dr_velocity_mps,
-            strict_chain=cfg.reinit_strict_chain,
-        )
-        self.starter = Reinitialiser(
-            cfg.reinit_k, cfg.reinit_consistency_m, math.inf, cfg.reinit_crlb_scale, cfg.reinit_extra_var_m2
-        )
         self.drift: DriftModel | None = None
         if cfg.process_model == "dr_errors":
             self.drift = DriftModel(
@@ -144,6 +99,15 @@ class RdNavCore:
             )
         self.gates = {m: float(chi2.ppf(cfg.gate_probability, m)) for m in range(1, 17)}
         self.gates_typical = {m: float(chi2.ppf(0.95, m)) for m in range(1, 17)}
+        # the components of the filter step (_process_cycle)
+        self.model = MeasurementModel(cfg, self.drift)
+        self.gate = CycleGate(cfg, self.model, self.gates)
+        self.rescue = LateArrivalRescue(self.gates)
+        self.pf_update = PfUpdater(cfg, self.pf, self.rng)
+        self.lock = LossOfLock(cfg, self.dr, self.gates[1], self.gates_typical)
+        self.shadow = ShadowUpdater(cfg, self.ekf, self.model, self.gates)
+        self.fixes = FixBuilder(cfg)
+        self.starter = SnapshotStarter(cfg, self.dr, self.model)
         self.counts: Counter[str] = Counter()  # rejected inputs and rejected cycles by reason
         self._t0_ns: int | None = None
         self._reset_state()
@@ -164,7 +128,7 @@ class RdNavCore:
         self.sigma_c_mps = self.cfg.sigma_c_fallback_mps
         self.c_fallback = False
         self._last_prop_t = -math.inf
-        self._last_dropped: str | None = None
+        self.rescue.clear()
 
     # ======================================================================= public API =====
     def step(self, msg: Message) -> list[Message]:
@@ -216,7 +180,7 @@ class RdNavCore:
             self._time(msg)
             self.asm.discard_all()
             self.asm.reset_clock()
-            self.reinit.clear()
+            self.lock.clear()
             self.starter.clear()
             self._reset_state()
             return []
@@ -296,7 +260,7 @@ class RdNavCore:
         self.t_last_fix = t  # the start disc holds the first cycle's worth of drift
         self.updates_since_seed = 0
         self.status = "INIT"
-        self.reinit.clear()
+        self.lock.clear()
 
     def _on_arrival(self, msg: AcousticArrival) -> list[Message]:
         t = self._time(msg)
@@ -469,309 +433,138 @@ class RdNavCore:
         )
 
     def measurement_cov(self, cd: CycleData, at: F64) -> F64:
-        """R of §4.2 for this cycle, evaluated at the horizontal position ``at``."""
-        cfg = self.cfg
-        M = cd.d.size
-        sig = np.full(M + 1, cfg.sigma_node_m)
-        if cfg.use_packet_pos_sigma:
-            sig = np.maximum(sig, cd.pos_sigma)
-        node = None
-        if np.any(sig > 0.0):
-            zj = np.full(M, cd.depth)
-            node = node_cov_term(at, cd.depth, zj, cd.delta, cd.leader, cd.followers, float(sig[0]), sig[1:])
-        if cfg.motion_compensation and self.drift is not None:
-            # the DR error states are in the filter (each particle compensates with its own): only the white DR
-            # noise of the intra-cycle displacements remains, shared by two followers over the shorter one
-            zj = np.full(M, cd.depth)
-            u = follower_units(at, zj, cd.delta, cd.followers)
-            mc: F64 = np.zeros((M, M))
-            for j in range(M):
-                for k in range(j, M):
-                    i = j if cd.dt[j] <= cd.dt[k] else k
-                    C = self.drift.white_cov(float(cd.dt[i]), cd.delta[i], cd.G[i][:, 0])
-                    C = C + 0.5 * float(cd.iv[i]) * np.eye(2)
-                    mc[j, k] = mc[k, j] = float(u[j] @ C @ u[k])
-            node = mc if node is None else node + mc
-        elif cfg.motion_compensation and cfg.sigma_dr_velocity_mps > 0.0:
-            zj = np.full(M, cd.depth)
-            mc = motion_comp_cov(at, zj, cd.delta, cd.followers, cd.dt, cfg.sigma_dr_velocity_mps)
-            node = mc if node is None else node + mc
-        sigma_c = cd.sigma_c if cfg.include_sound_speed_in_r else 0.0
-        return measurement_cov(cd.s, cd.c, cfg.sigma_t_s, cfg.sigma_f_s, sigma_c, node)
+        """R of §4.2 for this cycle, evaluated at the horizontal position ``at`` (:mod:`.measurement`)."""
+        return self.model.cov(cd, at)
 
     # ====================================================================== the filter step ====
     def _process_cycle(self, oc: OpenCycle) -> list[Message]:
+        """One closed cycle through the filter step (§4.4), each step a component with its maths in its module."""
         cd = self._cycle_data(oc)
-        out: list[Message] = [cd.msg]
         if not self.initialised:
-            if cd.reject is None:
-                self._try_snapshot_start(cd)
-            else:
-                self.counts[f"cycle_{cd.reject}"] += 1
-            return out
-        cfg = self.cfg
+            self._initiate(cd)
+            return [cd.msg]
         if self.dr.covers(cd.t1):
-            self._predict_to(cd.t1)
-        x_hat, P_hat = self.pf.estimate()
-        M = cd.d.size
-        zj = np.full(M, cd.depth)
-        G: F64 | None = None  # DR error states -> motion compensation (process_model dr_errors)
-        C_joint: F64 | None = None
-        z_mean: F64 | None = None
-        Hz: F64 | None = None
-        gauss: tuple[F64, F64, F64, F64, F64] | None = None
-        raw_delta = cd.delta
-        if self.drift is not None and M > 0 and cfg.motion_compensation:
-            G = cd.G
-            z_mean, C_joint = self.pf.joint_estimate()
-            cd = replace(cd, delta=cd.delta - np.einsum("mij,j->mi", G, z_mean[2:]))
-        reject = cd.reject
-        nis: float | None = None
-        resid: list[float] = []
-        drms_c: float | None = None
-        flags = list(cd.msg.flags)
-        event = ""
-        ekf_state: tuple[str, float | None, list[float]] | None = None
-        dropped: str | None = None
-        if reject is None:
-            R = self.measurement_cov(cd, x_hat)
-            xr = x_hat.reshape(1, 2)
-            e = cd.d - predict_d(xr, cd.leader, cd.followers, cd.delta, cd.depth, zj)[0]
-            H = jacobian_d(xr, cd.leader, cd.followers, cd.delta, cd.depth, zj)[0]
-            if G is not None and C_joint is not None:  # h also depends on the DR errors through delta_j
-                Hz = np.hstack([H, -np.einsum("mi,mij->mj", H, G)])
-                S = Hz @ C_joint @ Hz.T + R
-            else:
-                S = H @ P_hat @ H.T + R
-            S = symmetrize(S)
-            nis = nis_full = float(e @ np.linalg.solve(S, e))
-            resid = e.tolist()
-            if M >= 2:
-                try:
-                    drms_c = math.sqrt(max(float(np.trace(crlb(H, R))), 0.0))
-                    if drms_c > cfg.degraded_drms_m or _cond(H) > cfg.degraded_cond:
-                        flags.append("DEGRADED_GEOMETRY")
-                except np.linalg.LinAlgError:
-                    flags.append("DEGRADED_GEOMETRY")
-            T: F64 | None = None
-            rescued = False
-            if not math.isfinite(nis):
-                reject = "NON_FINITE_INNOVATION"
-            elif cfg.gating and self.updates_since_seed < cfg.gate_after_updates:
-                flags.append("UNGATED")  # converging from the start disc or a re-seed: the cloud is no judge yet
-            elif cfg.gating:
-                gated = nis > self.gates[min(M, 16)]
-                rescue = cfg.drop_single_outlier and M >= 2 and (gated or not cfg.outlier_only_if_gated)
-                late = self._one_late_arrival(e, S, cd.ids) if rescue else None
-                if late is not None and late[0] == self._last_dropped:
-                    late = None  # multipath is random: the same arrival late twice in a row points at the filter
-                if late is not None:
-                    dropped, T, nis = late
-                    rescued = True
-                    flags.append(f"OUTLIER:{dropped}")
-                elif gated:
-                    reject = "NIS_GATE"
-            if reject is None:
-                prior_w = self.pf.w
-                if T is None:  # the cloud's moments and this cycle's linearisation, for a degenerate update
-                    joint = Hz is not None and C_joint is not None and z_mean is not None
-                    gauss = (z_mean, C_joint, Hz, e, S) if joint else (x_hat, P_hat, H, e, S)  # type: ignore[assignment]
-                Rw = R
-                if G is not None:  # each particle compensates with its mean DR errors; their shared spread adds to R
-                    He = -np.einsum("mi,mij->mj", H, G)
-                    Rw = R + He @ self.pf.PE @ He.T
-                Rinv = np.linalg.inv(Rw if T is None else T @ Rw @ T.T)
-                ok, m2_min = self.pf.weight(
-                    cd.d,
-                    Rinv,
-                    cd.leader,
-                    cd.followers,
-                    raw_delta if G is not None else cd.delta,
-                    cd.depth,
-                    zj,
-                    cfg.epsilon,
-                    cfg.outlier_m2,
-                    T,
-                    G,
-                )
-                if not ok:
-                    reject = "WEIGHT_FAILURE"
-                elif m2_min > cfg.outlier_m2:  # no particle near the measurement: the update did nothing
-                    self.pf.w = prior_w
-                    reject = "NO_OVERLAP"
-            if reject is None:
-                self.t_last_update = cd.t1
-                if M >= 2:
-                    self.updates_since_seed += 1
-                if M >= 2 and not (cfg.q_drift_weak_geometry and "DEGRADED_GEOMETRY" in flags):
-                    self.t_last_fix = cd.t1
-                event = "USED"
-                if not rescued and (M >= 2 or cfg.reinit_strict_chain):
-                    self.reinit.clear()  # a partial (M = 1) cycle inside the gate does not prove lock
-            if (rescued or reject in ("NIS_GATE", "NO_OVERLAP")) and cfg.reinit:
-                # a cycle the filter could not use whole counts towards loss of lock (§4.4 step 8)
-                tag = None
-                if M >= 2 and math.isfinite(nis_full):
-                    # x_hat explained to measurement precision (R, not S) by one late arrival?
-                    explained = self._one_late_arrival(e, R, cd.ids, self.gates_typical, cfg.reinit_late_arrival_min_m)
-                    tag = explained[0] if explained is not None else None
-                self.reinit.record(self._snapshot(cd, x_hat, R) if M >= 2 else None, tag)
-                prop = self.reinit.propose(x_hat)
-                if prop is not None:
-                    self.pf.init_gaussian(prop.mean, prop.cov, self._error_cov())
-                    if cfg.ekf_reseed_on_pf_reinit:
-                        self.ekf.init(prop.mean, prop.cov, self._error_cov())
-                    self.reinit_count += 1
-                    self.reinit.clear()
-                    self.t_last_update = self.t_last_fix = cd.t1
-                    self.updates_since_seed = 0
-                    event = "REINIT"
-                    flags.append("REINIT")
-            # EKF shadow: same inputs, its own gate (from the same update on as the PF's)
-            if cfg.ekf_shadow and self.ekf.initialised:
-                converging = self.updates_since_seed <= cfg.gate_after_updates and "UNGATED" in flags
-                Re = self.measurement_cov(cd, self.ekf.x)
-                ekf_res = self.ekf.update(
-                    cd.d,
-                    Re,
-                    cd.leader,
-                    cd.followers,
-                    raw_delta if G is not None else cd.delta,
-                    cd.depth,
-                    zj,
-                    self.gates[min(M, 16)] if cfg.gating and not converging else None,
-                    G,
-                )
-                ekf_state = ("USED" if ekf_res.accepted else "REJECTED", ekf_res.nis, ekf_res.residual_m.tolist())
-        else:
-            ekf_state = ("REJECTED", None, []) if cfg.ekf_shadow and self.ekf.initialised else None
-        if reject is not None and event != "REINIT":
-            self.counts[f"cycle_{reject}"] += 1
+            self._predict_to(cd.t1)  # step 2: DR prediction to the leader-arrival epoch t1
+        prior = Prior.of(self.pf, cd, self.drift is not None and self.cfg.motion_compensation)  # Eqs. (6)-(7)
+        out = CycleOutcome(reject=cd.reject, flags=list(cd.msg.flags))
+        gauss = None
         if cd.reject is None:
-            self._last_dropped = dropped if event == "USED" else None
-        if event == "USED" and gauss is not None and self.pf.n_eff() < cfg.degenerate_neff_fraction * cfg.n_particles:
-            self._regenerate(*gauss)  # too few particles carry the posterior (e.g. the first cycle after the R0 disc)
-            flags.append("REGENERATED")
-        # estimate (Eq. 6-7) before regeneration, then regenerate (§4.4 steps 6-7)
-        x_hat, P_hat = self.pf.estimate()
-        if cfg.estimate == "map" and event == "USED":
-            m = self.pf.map_estimate(cfg.map_weight_threshold)
-            if m is not None:
-                x_hat = m
-        n_eff = self.pf.n_eff()
-        if event == "USED" and n_eff < cfg.resample_fraction * cfg.n_particles:
-            self.pf.resample(cfg.roughening_m, cfg.roughening_shrink)
-        if not self.pf.finite():  # never expected; keep the state valid if it happens
-            self.pf.init_gaussian(
-                x_hat if np.isfinite(x_hat).all() else self.ekf.x, np.eye(2) * 100.0, self._error_cov()
-            )
-            flags.append("PF_RESET")
-        status = self._status(cd.t1, event, reject, flags)
-        self.status = status
-        used = cd
-        if dropped is not None and event == "USED" and dropped != cd.ids[0]:
-            used = replace(cd, ids=[i for i in cd.ids if i != dropped])
-        n_used = cd.d.size - (1 if dropped is not None else 0)
-        cycle_status = "REJECTED" if event != "USED" else ("PARTIAL" if n_used == 1 else "USED")
-        out.append(
-            self._fix(
-                "PF",
+            inn = self.gate.innovate(prior)  # e, H, S, NIS at x_hat (gate.py)
+            self.gate.check_geometry(inn, out)  # CRLB DRMS, DEGRADED_GEOMETRY
+            self.gate.decide(inn, prior.cd.ids, self.updates_since_seed, self.rescue, out)  # NIS gate, rescue.py
+            if out.reject is None:
+                gauss = inn.gaussian(prior) if out.T is None else None  # for a degenerate update
+                self.pf_update.weight(prior, inn, out)  # steps 3-5 (pf_update.py)
+            if out.reject is None:
+                self._mark_used(prior.cd, out)
+            if self.lock.counts(out):  # step 8: loss of lock (reinit_policy.py)
+                self._reseed(self.lock.on_failed(prior.cd, inn, prior.x_hat), cd.t1, out)
+            self.shadow.update(prior, self.updates_since_seed, out)  # §4.5 EKF shadow (shadow.py)
+        else:
+            self.shadow.rejected(out)
+        self._tally(cd, out)
+        self.pf_update.regenerate_if_degenerate(gauss, out)
+        x_hat, P_hat, n_eff = self.pf_update.posterior(out, self.ekf.x, self._error_cov())  # steps 6-7
+        self.status = self._status(cd.t1, out.event, out.reject, out.flags)
+        return [cd.msg, *self._cycle_fixes(prior.cd, out, x_hat, P_hat, n_eff), *self._after_cycle(cd.t1)]
+
+    def _initiate(self, cd: CycleData) -> None:
+        """A cycle before the filter runs: it may start it (snapshot fixes), else only its rejection is counted."""
+        if cd.reject is None:
+            self._try_snapshot_start(cd)
+        else:
+            self.counts[f"cycle_{cd.reject}"] += 1
+
+    def _mark_used(self, cd: CycleData, out: CycleOutcome) -> None:
+        """The PF used the cycle: a complete one (M >= 2) that is well conditioned also ends the DR drift's growth
+        (q_drift) and counts towards the gate's warm-up; the loss-of-lock run ends."""
+        M = cd.d.size
+        self.t_last_update = cd.t1
+        if M >= 2:
+            self.updates_since_seed += 1
+        if M >= 2 and not (self.cfg.q_drift_weak_geometry and "DEGRADED_GEOMETRY" in out.flags):
+            self.t_last_fix = cd.t1
+        out.event = "USED"
+        self.lock.on_used(out, M)
+
+    def _reseed(self, prop: Proposal | None, t1: float, out: CycleOutcome) -> None:
+        """Re-seed the PF (and the EKF) as N(X_snap, 4 P_CRLB + 0.25 I) if the loss-of-lock policy proposes it."""
+        if prop is None:
+            return
+        self.pf.init_gaussian(prop.mean, prop.cov, self._error_cov())
+        if self.cfg.ekf_reseed_on_pf_reinit:
+            self.ekf.init(prop.mean, prop.cov, self._error_cov())
+        self.reinit_count += 1
+        self.lock.clear()
+        self.t_last_update = self.t_last_fix = t1
+        self.updates_since_seed = 0
+        out.event = "REINIT"
+        out.flags.append("REINIT")
+
+    def _tally(self, cd: CycleData, out: CycleOutcome) -> None:
+        """Count a rejected cycle by reason; remember the dropped arrival of a cycle that passed the cycle checks."""
+        if out.reject is not None and out.event != "REINIT":
+            self.counts[f"cycle_{out.reject}"] += 1
+        if cd.reject is None:
+            self.rescue.remember(out.dropped if out.event == "USED" else None)
+
+    def _cycle_fixes(self, cd: CycleData, out: CycleOutcome, x_hat: F64, P_hat: F64, n_eff: float) -> list[Message]:
+        """The PF's fix at t1 and the EKF shadow's (if it ran)."""
+        used = out.event == "USED"
+        ids = cd.ids
+        if out.dropped is not None and used and out.dropped != cd.ids[0]:
+            ids = [i for i in cd.ids if i != out.dropped]
+        n_used = cd.d.size - (1 if out.dropped is not None else 0)
+        state = self._state(cd.t1)
+        t_local = cd.oc.leader.t_rx_local_s
+        pf_fix = FixContent(
+            "PF",
+            "CYCLE",
+            cd.t1_stamp_ns,
+            x_hat,
+            P_hat,
+            self.status,
+            n_eff,
+            t_local_s=t_local,
+            cycle_status="REJECTED" if not used else ("PARTIAL" if n_used == 1 else "USED"),
+            reject=out.reject if not used else None,
+            cd=cd,
+            beacons=ids,
+            residuals_m=out.residuals_m,
+            nis=out.nis,
+            drms_crlb_m=out.drms_crlb_m,
+            flags=out.flags,
+        )
+        fixes: list[Message] = [self.fixes.build(pf_fix, state)]
+        if out.ekf is not None:
+            ekf_status, ekf_nis, ekf_resid = out.ekf
+            ekf_fix = FixContent(
+                "EKF",
                 "CYCLE",
                 cd.t1_stamp_ns,
-                cd.oc.leader.t_rx_local_s,
-                x_hat,
-                P_hat,
-                status,
-                cycle_status,
-                reject if event != "USED" else None,
-                used,
-                n_eff,
-                resid,
-                nis,
-                drms_c,
-                flags,
-                cd.t1,
+                self.ekf.x,
+                self.ekf.P,
+                "TRACKING" if ekf_status == "USED" else ("REJECTED" if self.status != "LOST" else "LOST"),
+                0.0,
+                t_local_s=t_local,
+                cycle_status=ekf_status,
+                reject=None if ekf_status == "USED" else (out.reject or "NIS_GATE"),
+                cd=cd,
+                beacons=cd.ids,
+                residuals_m=ekf_resid,
+                nis=ekf_nis,
+                drms_crlb_m=out.drms_crlb_m,
             )
-        )
-        if ekf_state is not None:
-            e_status = "TRACKING" if ekf_state[0] == "USED" else ("REJECTED" if status != "LOST" else "LOST")
-            out.append(
-                self._fix(
-                    "EKF",
-                    "CYCLE",
-                    cd.t1_stamp_ns,
-                    cd.oc.leader.t_rx_local_s,
-                    self.ekf.x,
-                    self.ekf.P,
-                    e_status,
-                    ekf_state[0],
-                    None if ekf_state[0] == "USED" else (reject or "NIS_GATE"),
-                    cd,
-                    0.0,
-                    ekf_state[2],
-                    ekf_state[1],
-                    drms_c,
-                    [],
-                    cd.t1,
-                )
-            )
-        if cfg.emit_propagated_after_cycle:
-            t_now = self.dr.last_t
-            if t_now is not None and t_now > cd.t1:
-                fix = self._propagated_fix(t_now)
-                if fix is not None:
-                    out.append(fix)
-        return out
+            fixes.append(self.fixes.build(ekf_fix, state))
+        return fixes
 
-    def _regenerate(self, z: F64, C: F64, H: F64, e: F64, S: F64) -> None:
-        """Resample, then draw the positions from the Gaussian posterior of the prior cloud's moments and this
-        cycle's linearised measurement: K = C H^T S^-1, z+ = z + K e, C+ = C - K S K^T ([E]). A cloud much wider
-        than one cycle's likelihood (the R0 = 10 m disc against ~0.5 m) leaves a handful of particles with weight,
-        whose spread says nothing of the posterior's (nor do their few DR-error means); this keeps its covariance,
-        the DR errors' included (their mean given each drawn position, and the conditional covariance)."""
-        K = np.linalg.solve(S, H @ C).T
-        zp = z + K @ e
-        Cp = C - K @ S @ K.T
-        Pxx = symmetrize(Cp[:2, :2])
-        if not (np.isfinite(zp).all() and is_positive_definite(Pxx)):
-            return
-        self.pf.resample(0.0)
-        self.pf.X = zp[:2][None, :] + self.rng.standard_normal(self.pf.X.shape) @ np.linalg.cholesky(Pxx).T
-        if zp.size > 2:  # DR errors: their mean given each position, and the conditional covariance (shared)
-            B = np.linalg.solve(Pxx, Cp[:2, 2:]).T  # C_ex C_xx^-1
-            self.pf.E = zp[2:][None, :] + (self.pf.X - zp[:2][None, :]) @ B.T
-            PE = Cp[2:, 2:] - B @ Cp[:2, 2:]
-            self.pf.PE = symmetrize(PE)
-
-    def _one_late_arrival(
-        self, e: F64, S: F64, ids: list[str], rest_gates: dict[int, float] | None = None, min_delay_m: float = 0.0
-    ) -> tuple[str, F64, float] | None:
-        """One late arrival explains the residual (§4.11 [E]): a late follower j raises only its own d_j
-        (direction u_j), a late leader lowers every d_j equally (direction -1). For each hypothesis g the
-        delay estimate b = g'S^-1 e / g'S^-1 g must be positive (> min_delay_m), alone fail the 1-D gate,
-        and the rest of the residual (NIS - z) pass the (M-1)-D gate.
-        Returns (arrival id, transform T with T g = 0, reduced NIS)."""
-        M = e.size
-        rest = rest_gates or self.gates
-        Si_e = np.linalg.solve(S, e)
-        nis = float(e @ Si_e)
-        best: tuple[float, int] | None = None
-        for k in range(M + 1):  # k < M: follower k; k == M: the leader
-            g = -np.ones(M) if k == M else np.eye(M)[k]
-            Si_g = np.linalg.solve(S, g)
-            num, den = float(g @ Si_e), float(g @ Si_g)
-            z = num * num / den
-            passes = num > min_delay_m * den and z > self.gates[1] and nis - z <= rest[min(M - 1, 16)]
-            if passes and (best is None or z > best[0]):
-                best = (z, k)
-        if best is None:
-            return None
-        z, k = best
-        if k == M:
-            T = np.column_stack([-np.ones(M - 1), np.eye(M - 1)])  # d_j - d_2: leader-free differences
-            return ids[0], T, nis - z
-        T = np.delete(np.eye(M), k, axis=0)  # the other followers
-        return ids[1 + k], T, nis - z
+    def _after_cycle(self, t1: float) -> list[Message]:
+        """With ``emit_propagated_after_cycle``: the estimate carried by DR to the latest sensor time."""
+        t_now = self.dr.last_t
+        if not self.cfg.emit_propagated_after_cycle or t_now is None or t_now <= t1:
+            return []
+        fix = self._propagated_fix(t_now)
+        return [fix] if fix is not None else []
 
     def _status(self, t: float, event: str, reject: str | None, flags: list[str]) -> str:
         if not self.dr.valid_at(t):
@@ -859,59 +652,12 @@ class RdNavCore:
     def _error_cov(self) -> F64 | None:
         return None if self.drift is None else self.drift.prior_cov()
 
-    def _snapshot(self, cd: CycleData, x_hat: F64, R: F64) -> Snapshot | None:
-        """Snapshot Gauss-Newton fix of one cycle (§4.5), the solution nearest x_hat."""
-        cfg = self.cfg
-        M = cd.d.size
-        zj = np.full(M, cd.depth)
-        W = np.linalg.inv(R)
-        gn: dict[str, Any] = {"max_iter": cfg.gn_max_iter, "step_limit_m": cfg.gn_step_limit_m, "tol_m": cfg.gn_tol_m}
-        r = gauss_newton(cd.d, x_hat.reshape(1, 2), cd.leader, cd.followers, cd.delta, cd.depth, zj, W, **gn)
-        tol = 5.0 * math.sqrt(float(np.trace(R)))
-        if r.converged[0] and r.residual_m[0] < tol:
-            p = r.p[0]
-        else:
-            sols = multi_start_solutions(
-                cd.d, cd.leader, cd.followers, cd.delta, cd.depth, zj, W, x_hat.reshape(1, 2), tol, **gn
-            )
-            if sols.shape[0] == 0:
-                return None
-            p = sols[int(np.argmin(np.hypot(*(sols - x_hat[None, :]).T)))]
-        try:
-            H = jacobian_d(p.reshape(1, 2), cd.leader, cd.followers, cd.delta, cd.depth, zj)[0]
-            P = crlb(H, R)
-        except np.linalg.LinAlgError:
-            return None
-        if not is_positive_definite(P):
-            return None
-        b = self.dr.at(cd.t1)
-        return Snapshot(p=p.copy(), P_crlb=P, dr_xy=np.array([b.x_m, b.y_m]), t_s=cd.t1)
-
     def _try_snapshot_start(self, cd: CycleData) -> None:
-        """Without a start position: K consistent snapshot fixes start the filter (§4.5, [E])."""
-        if not self.cfg.init_from_snapshots or cd.d.size < 2:
+        """Without a start position: K consistent snapshot fixes start the filter (§4.5, [E]; starter.py)."""
+        start = self.starter.offer(cd)
+        if start is None:
             return
-        M = cd.d.size
-        zj = np.full(M, cd.depth)
-        R0 = measurement_cov(cd.s, cd.c, self.cfg.sigma_t_s, self.cfg.sigma_f_s, cd.sigma_c)
-        W = np.linalg.inv(R0)
-        sols = multi_start_solutions(cd.d, cd.leader, cd.followers, cd.delta, cd.depth, zj, W)
-        if sols.shape[0] == 0:
-            self.starter.record(None)
-            return
-        cen = np.vstack([cd.leader[None, :2], cd.followers[:, :2]]).mean(axis=0)
-        p = sols[int(np.argmin(np.hypot(*(sols - cen[None, :]).T)))]
-        H = jacobian_d(p.reshape(1, 2), cd.leader, cd.followers, cd.delta, cd.depth, zj)[0]
-        try:
-            P = crlb(H, self.measurement_cov(cd, p))
-        except np.linalg.LinAlgError:
-            self.starter.record(None)
-            return
-        b = self.dr.at(cd.t1)
-        self.starter.record(Snapshot(p=p, P_crlb=P, dr_xy=np.array([b.x_m, b.y_m])))
-        prop = self.starter.propose(None)
-        if prop is None:
-            return
+        prop, b = start
         self.pf.init_gaussian(prop.mean, prop.cov, self._error_cov())
         self.ekf.init(prop.mean, prop.cov, self._error_cov())
         self.initialised = True
@@ -950,66 +696,8 @@ class RdNavCore:
             status = "DR_ONLY"
         else:
             status = self.status
-        return self._fix(
-            "PF",
-            "PROPAGATED",
-            self._stamp(t),
-            None,
-            x,
-            Qp,
-            status,
-            "NONE",
-            None,
-            None,
-            self.pf.n_eff(),
-            [],
-            None,
-            None,
-            [],
-            t,
-        )
+        content = FixContent("PF", "PROPAGATED", self._stamp(t), x, Qp, status, self.pf.n_eff())
+        return self.fixes.build(content, self._state(t))
 
-    def _fix(
-        self,
-        estimator: str,
-        kind: str,
-        stamp_ns: int,
-        t_local: float | None,
-        x: F64,
-        P: F64,
-        status: str,
-        cycle_status: str,
-        reject: str | None,
-        cd: CycleData | None,
-        n_eff: float,
-        resid: list[float],
-        nis: float | None,
-        drms_c: float | None,
-        flags: list[str],
-        t: float,
-    ) -> RdNavFix:
-        P = symmetrize(P) + 1e-9 * np.eye(2)  # a collapsed cloud still reports a positive-definite P
-        return RdNavFix(
-            header=Header(stamp_ns=stamp_ns, frame_id=self.cfg.frame_id),
-            auv_id=self.cfg.auv_id,
-            estimator=estimator,  # type: ignore[arg-type]
-            kind=kind,  # type: ignore[arg-type]
-            t_local_s=t_local,
-            position_ned_m=[float(x[0]), float(x[1]), float(self.depth if self.depth is not None else 0.0)],
-            cov_xy_m2=P.tolist(),
-            status=status,  # type: ignore[arg-type]
-            valid=self.initialised and status != "LOST",
-            cycle_status=cycle_status,  # type: ignore[arg-type]
-            reject_reason=reject,
-            leader_id=cd.oc.leader_id if cd is not None else None,
-            cycle_seq=cd.oc.cycle_seq if cd is not None else None,
-            n_eff=float(n_eff),
-            n_particles=self.cfg.n_particles if estimator == "PF" else 0,
-            reinit_count=self.reinit_count,
-            beacons_used=list(cd.ids) if cd is not None and cycle_status in ("USED", "PARTIAL") else [],
-            residuals_m=[float(v) for v in resid],
-            nis=nis if nis is None or math.isfinite(nis) else None,
-            drms_crlb_m=drms_c,
-            cycles_since_update=self._cycles_since_update(t),
-            flags=sorted(set(flags))[:32],
-        )
+    def _state(self, t: float) -> FilterState:
+        return FilterState(self.initialised, self.depth, self.reinit_count, self._cycles_since_update(t))
