@@ -42,17 +42,22 @@ _UNSET = object()
 
 
 class MotionModel(BaseModel):
-    """One motion model of the interacting-multiple-model (IMM) bank, over the same 9-state as eq. (3).
+    """One motion model of the interacting-multiple-model (IMM) bank, over the 9-state of eq. (3) (plus the turn
+    rate omega in a bank with a ``ct`` model, imm.py).
 
     * ``ca``: the paper's constant-acceleration model driven by random jerk (eq. 3, M = S^T D S) of standard
       deviation ``sigma_jerk_mps3`` (m/s^3);
     * ``singer``: the acceleration is mean-reverting (first-order Markov, correlation time ``tau_s``) with
       stationary standard deviation ``sigma_accel_mps2``: non-manoeuvring flight, whose acceleration wanders
-      about zero (turbulence, pilot corrections) instead of drifting like the CA model's random walk.
+      about zero (turbulence, pilot corrections) instead of drifting like the CA model's random walk;
+    * ``ct``: the nearly coordinated turn (models.ct_predict): a turn-rate state omega, a random walk of
+      ``sigma_turn_rate_dps`` (deg/s over 1 s), and a horizontal acceleration omega x V_h plus a Singer deviation
+      (``sigma_accel_mps2``, ``tau_s``; the vertical axis a Singer model of the same); ``ct_prediction`` chooses
+      the Gauss-Hermite quadrature over omega (default) or the EKF.
 
     ``sojourn_s``: mean time (s) the aircraft stays in this mode; the Markov switching probability over a step
     dt is 1 - exp(-dt / sojourn_s), shared equally among the other models (or among those named in
-    ``exits_to``: a turn ends in level flight, not in another turn).
+    ``exits_to``: a turn ends in straight flight or a new onset, not in another model).
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)

@@ -11,7 +11,7 @@ shared equally). One cycle, for a plot z with covariance R_z at dt after the las
                 alpha0_j = sum_i mu_i|j alpha_i,
                 P0_j = sum_i mu_i|j [P_i + (alpha_i - alpha0_j)(alpha_i - alpha0_j)^T];
 2. per model:   alpha~_j = F_j alpha0_j,  P~_j = F_j P0_j F_j^T + Q_j           (eq. 3 with the model's F, Q;
-                                                                                the CT model: EKF, see below)
+                                                                                the CT model: see below)
                 nu_j = z - H alpha~_j,    S_j = H P~_j H^T + R_z,                Lambda_j = N(nu_j; 0, S_j)
                 alpha_j, P_j: the Kalman update of eq. (3) (Joseph form, filter.update);
 3. probability: mu_j = Lambda_j c_j / sum_k Lambda_k c_k;
@@ -37,9 +37,10 @@ omega = (Vx az - Vz ax) / V_h^2, with first-order moments (:func:`augment`). So
   no data supports; mixing the common sub-state only would restart the CT model's omega from its own last value
   whatever the other models saw (at a roll-in, the onset model sees the turn first).
 
-The CT model's prediction is an EKF step: the mean through the exact discrete map for the mixed estimate's omega,
-the covariance through that map's exact Jacobian (the omega column by the Frechet derivative of expm). The output
-(alpha, P) is the 9-state part of the mixture; the turn rate stays internal.
+The CT model's prediction (:func:`~.models.ct_predict`) integrates the exact transition given omega over omega's
+Gaussian by Gauss-Hermite quadrature (``ct_prediction: ekf``: the EKF of :func:`~.models.ct_step`, the exact
+Jacobian of the discrete map, its omega column the Frechet derivative of expm). The output (alpha, P) is the
+9-state part of the mixture; the turn rate stays internal.
 """
 
 from __future__ import annotations
@@ -103,7 +104,7 @@ def state_dim(models: tuple[MotionModel, ...]) -> int:
 
 #: turn rates implied by a CA/Singer state are capped at this standard deviation (rad/s, 17 deg/s: beyond any
 #: aircraft's sustained turn) before a CT model mixes them in: right after the FSF start the acceleration is
-#: known to tens of m/s^2, and an EKF started from a turn-rate spread of rad/s would linearise over nonsense
+#: known to tens of m/s^2, and a turn-rate spread of rad/s would spread the CT model's prediction over circles
 OMEGA_SIGMA_CAP = 0.3
 #: the variance (rad^2/s^2) added to an implied turn rate: it is a function of the state, so its covariance with
 #: the state would otherwise be singular
@@ -115,7 +116,8 @@ def augment(x: F64, p: F64) -> None:
     omega = (Vx az - Vz ax) / V_h^2, with first-order moments: cov(omega, alpha) = g^T P, var = g^T P g + nugget
     (g = d(omega)/d(alpha)). This is the CA and Singer models' view of the turn rate, which they do not carry:
     a CT model mixes it in like any other component. A variance above OMEGA_SIGMA_CAP^2 is scaled down to it
-    with its covariances (a congruence D P D, D = diag(1, .., 1, s), so P stays positive semi-definite)."""
+    with its covariances (a congruence D P D, D = diag(1, .., 1, s), so P stays positive semi-definite); the mean
+    is clipped to +-1 rad/s (a state of a diverging start, not an aircraft)."""
     w, g = turn_rate(x)
     p9g = p[:9, :9] @ g
     var = float(g @ p9g)
