@@ -2,7 +2,9 @@
 instance for 1, 100 and 1,000 simultaneous targets (plots interleaved scan by scan, as a radar site sends them).
 
 Target: 1,000 targets at a 5 s scan (200 plots/s) using under 10 % of one core, i.e. >= 2,000 plots/s.
-"default" is the default preset (the IMM of three models); "paper" the digest's single filter.
+"default" is the default preset (the IMM of three models, one of them the coordinated turn); "manoeuvre_ca" the
+default preset with the bank it had before the coordinated-turn model (three CA/Singer models); "paper" the
+digest's single filter.
 Timing is per plot of ``AttitudeCore.step`` on prebuilt RadarPlot messages, steady state (the targets are
 started before the timed scans), best of a few repetitions; CPU time of the process (the "share of one core"
 figure) and wall-clock time are both reported, with the machine's load average.
@@ -19,6 +21,7 @@ import numpy as np
 
 from schemas import Header, RadarPlot
 from services.attitude import AttitudeConfig, AttitudeCore
+from services.attitude.config import CA_MODELS
 from services.attitude.simulation import NS, fly, measure, paper_plan, scan_times
 from shared.service import InputRejected
 
@@ -91,6 +94,7 @@ def main() -> None:
         "default": AttitudeConfig(),
         "no_cov_check": AttitudeConfig(validate_covariances=False),
         "default+raw": AttitudeConfig(raw_output=True),
+        "manoeuvre_ca": AttitudeConfig(imm_models=CA_MODELS),
         "paper": AttitudeConfig(preset="paper"),
         "paper_no_cov_check": AttitudeConfig(preset="paper", validate_covariances=False),
     }

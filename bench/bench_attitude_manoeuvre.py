@@ -8,46 +8,121 @@ each preset, and the flight-phase statistics (:func:`services.attitude.metrics.p
 preset and phase, pooled over the family and per file: RMS error of heading, pitch, roll (earth frame) and of
 the three LOS angles; the state NEES (mean ANEES, the share of scans whose ANEES lies in its chi2(9N) 95 % band,
 the share of single NEES values inside the chi2(9) 95 % interval); the VALID consistency (share of estimates
-VALID, mean (error / sigma)^2 of the heading among them, share within 2 sigma); resets and gated plots.
+VALID, mean (error / sigma)^2 of the heading among them, share within 2 sigma); resets and gated plots. A second
+table pairs the presets on their common support: the RMS of heading, pitch and roll over the samples where BOTH
+presets report the angle (the paper preset's resets leave its hardest scans, those right after a manoeuvre,
+undefined, which flatters its own RMS), per phase, pooled and per file.
 
     ATTITUDE_BENCH_RUNS=100 python -m bench attitude_manoeuvre     # the runs per file (default 100)
+    ATTITUDE_BENCH_PRESETS=paper,manoeuvre,manoeuvre_ca ...        # presets compared (the first is the base)
 
 Seeds: ``fixstream mc``'s run seeds from seed 1 (the same plots for both presets: common random numbers).
 """
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from services.attitude.config import CA_MODELS
 from services.attitude.flights import FILES
-from services.attitude.metrics import phase_table
+from services.attitude.metrics import MIN_LOAD_ROLL, STEADY_AFTER_S, phase_table
 from services.player.scenario import load_scenario
 from tools.montecarlo import run_montecarlo
 
-from .report import emit
+from .report import emit, table
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
 PRESETS = ("paper", "manoeuvre")
+#: what a preset label of ATTITUDE_BENCH_PRESETS sets in the configuration: the two presets, and the default
+#: preset with the model bank it had before the coordinated-turn model (issue 15, first round)
+VARIANTS: dict[str, dict[str, Any]] = {
+    "paper": {"preset": "paper"},
+    "manoeuvre": {"preset": "manoeuvre"},
+    "manoeuvre_ca": {"preset": "manoeuvre", "imm_models": [m.model_dump(mode="json") for m in CA_MODELS]},
+}
 PHASES = ("turn", "manoeuvre", "straight", "steady")
 SEED = 1
 
 
-def run_file(name: str, preset: str, runs: int, workers: int) -> dict[str, Any]:
-    """The aggregate of the attitude estimator of scenario ``name`` with ``preset`` (reference rules off)."""
+def run_file(name: str, preset: str, runs: int, workers: int) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """The aggregate of the attitude estimator of scenario ``name`` with ``preset`` (reference rules off), and
+    per run and target the errors of heading, pitch and roll with the phase of every scan (for the pairing)."""
     sc = load_scenario(SCENARIOS / f"{name}.yaml")
     est = sc.estimators[0]
     params = {
         **dict(est.params),
         "reference": False,
-        "config": {**dict(est.params).get("config", {}), "preset": preset},
+        "config": {**dict(est.params).get("config", {}), **VARIANTS[preset]},
     }
     sc = sc.model_copy(update={"estimators": [est.model_copy(update={"params": params})]})
     result = run_montecarlo(sc, runs, seed=SEED, workers=workers, progress=False)
     agg: dict[str, Any] = result["aggregate"]["estimators"][est.instance]
-    return agg
+    records = []
+    for run in result["per_run"]:
+        for tid, rec in run["estimators"][est.instance]["targets"].items():
+            records.append(
+                {
+                    "key": (run["run"], tid),
+                    "phase": rec["phase"],
+                    "since": rec["since_manoeuvre_s"],
+                    "load": rec["load_factor_true"],
+                    "err": {a: rec["err"][a] for a in PAIRED_ANGLES},
+                }
+            )
+    return agg, records
+
+
+PAIRED_ANGLES = ("psi", "theta", "gamma")
+FIRST_SCAN = 20
+
+
+def _f(v: Any) -> float:
+    return math.nan if v is None else float(v)
+
+
+def paired(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Per phase and angle: RMS (deg) of presets a and b over the samples (scan >= FIRST_SCAN, roll where the true
+    load factor >= MIN_LOAD_ROLL) where both report the angle, the number of such samples, and the share of the
+    phase's samples that each preset reports."""
+    by_key = {r["key"]: r for r in b}
+    acc: dict[str, dict[str, np.ndarray]] = {}  # [samples, reported by a, by b, by both, sum sq a, sum sq b]
+    for ra in a:
+        rb = by_key[ra["key"]]
+        n = min(len(ra["phase"]), len(rb["phase"]))
+        for k in range(FIRST_SCAN - 1, n):
+            ph = ra["phase"][k]
+            if ph is None:
+                continue
+            phases = [ph] + (["steady"] if ph == "straight" and _f(ra["since"][k]) > STEADY_AFTER_S else [])
+            for angle in PAIRED_ANGLES:
+                if angle == "gamma" and not _f(ra["load"][k]) >= MIN_LOAD_ROLL:
+                    continue
+                ea, eb = _f(ra["err"][angle][k]), _f(rb["err"][angle][k])
+                fa, fb = math.isfinite(ea), math.isfinite(eb)
+                both = fa and fb
+                row = np.array([1.0, fa, fb, both, ea * ea if both else 0.0, eb * eb if both else 0.0])
+                for p in phases:
+                    cell = acc.setdefault(p, {}).get(angle)
+                    acc[p][angle] = row if cell is None else cell + row
+    out: dict[str, dict[str, Any]] = {}
+    for p, angles in acc.items():
+        out[p] = {}
+        for angle, (n, da, db, nb, sa, sb) in angles.items():
+            out[p][angle] = {
+                "samples": int(n),
+                "defined_a": da / n,
+                "defined_b": db / n,
+                "both": int(nb),
+                "rms_a": math.sqrt(sa / nb) if nb else None,
+                "rms_b": math.sqrt(sb / nb) if nb else None,
+            }
+    return out
 
 
 def rows_of(label: str, preset: str, phases: dict[str, Any], core: dict[str, int]) -> list[list[Any]]:
@@ -86,15 +161,17 @@ def rows_of(label: str, preset: str, phases: dict[str, Any], core: dict[str, int
 def main() -> None:
     runs = int(os.environ.get("ATTITUDE_BENCH_RUNS", "100"))
     workers = int(os.environ.get("ATTITUDE_BENCH_WORKERS", "1"))
+    presets = tuple(os.environ.get("ATTITUDE_BENCH_PRESETS", ",".join(PRESETS)).split(","))
     files = [*FILES, "attitude_9s15"]
     results: dict[str, dict[str, Any]] = {}
+    records: dict[str, list[dict[str, Any]]] = {}
     t0 = time.perf_counter()
-    for preset in PRESETS:
+    for preset in presets:
         for name in files:
-            results[f"{name}/{preset}"] = run_file(name, preset, runs, workers)
+            results[f"{name}/{preset}"], records[f"{name}/{preset}"] = run_file(name, preset, runs, workers)
     rows: list[list[Any]] = []
     figures: dict[str, Any] = {"runs_per_file": runs, "seed": SEED, "seconds": time.perf_counter() - t0}
-    for preset in PRESETS:
+    for preset in presets:
         family = [results[f"{name}/{preset}"] for name in FILES]
         pooled = phase_table([s for agg in family for s in agg["phase_samples"]])
         core: dict[str, int] = {}
@@ -104,10 +181,28 @@ def main() -> None:
         rows += rows_of("family", preset, pooled, core)
         figures[f"family/{preset}"] = {"phases": pooled, "core": core}
     for name in files:
-        for preset in PRESETS:
+        for preset in presets:
             agg = results[f"{name}/{preset}"]
             rows += rows_of(name.removeprefix("attitude_"), preset, agg["phases"], agg["core"])
             figures[f"{name}/{preset}"] = {"phases": agg["phases"], "core": agg["core"]}
+    # the presets paired against the first one (paper) on their common support
+    prows: list[list[Any]] = []
+    base = presets[0]
+    for preset in presets[1:]:
+        for label, names in [("family", list(FILES)), *[(n.removeprefix("attitude_"), [n]) for n in files]]:
+            pa = paired(
+                [r for n in names for r in records[f"{n}/{base}"]],
+                [r for n in names for r in records[f"{n}/{preset}"]],
+            )
+            figures[f"paired/{label}/{base}/{preset}"] = pa
+            for ph in PHASES:
+                if ph not in pa:
+                    continue
+                cells: list[Any] = [label, f"{base} / {preset}", ph]
+                for angle in PAIRED_ANGLES:
+                    c = pa[ph][angle]
+                    cells += [c["rms_a"], c["rms_b"], f"{c['defined_a']:.3f} / {c['defined_b']:.3f}"]
+                prows.append(cells)
     headers = [
         "scenario",
         "preset",
@@ -130,6 +225,11 @@ def main() -> None:
         "gated",
     ]
     emit("attitude_manoeuvre", headers, rows, figures)
+    pheaders = ["scenario", "presets", "phase"]
+    for angle in PAIRED_ANGLES:
+        pheaders += [f"{angle} a", f"{angle} b", f"{angle} reported a / b"]
+    print("\n## attitude_manoeuvre: paired on the common support (RMS over the samples both presets report)\n")
+    print(table(pheaders, prows))
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ import pytest
 
 from schemas import Header, RadarPlot
 from services.attitude import AttitudeConfig, AttitudeCore, imm
-from services.attitude.config import MANOEUVRE_MODELS, MotionModel
+from services.attitude.config import CA_MODELS, MANOEUVRE_MODELS, MotionModel
 from services.attitude.filter import predict, update
 from services.attitude.geometry import convert_plot
 from services.attitude.initiation import fsf_estimate
@@ -31,13 +31,32 @@ def random_spd(rng: np.random.Generator, n: int = 9) -> np.ndarray:
 
 def test_transition_probabilities_are_the_markov_chain_over_dt() -> None:
     for dt in (0.5, 5.0, 37.0):
-        pi = imm.transition_probabilities(MANOEUVRE_MODELS, dt)
+        pi = imm.transition_probabilities(CA_MODELS, dt)
         assert pi.sum(axis=1) == pytest.approx(np.ones(3), abs=1e-15)
-        for i, m in enumerate(MANOEUVRE_MODELS):
+        for i, m in enumerate(CA_MODELS):
             assert pi[i, i] == pytest.approx(math.exp(-dt / m.sojourn_s), rel=1e-14)
             others = [pi[i, j] for j in range(3) if j != i]
             assert others[0] == pytest.approx(others[1]) and others[0] > 0.0
     assert imm.transition_probabilities((CA,), 5.0).tolist() == [[1.0]]
+
+
+def test_transition_probabilities_follow_exits_to() -> None:
+    """The default bank: the turn model switches only to the models its exits_to names (a turn ends in straight
+    flight or a new onset, not in another model), equally; the other rows share equally among all others."""
+    names = [m.name for m in MANOEUVRE_MODELS]
+    for dt in (1.0, 5.0):
+        pi = imm.transition_probabilities(MANOEUVRE_MODELS, dt)
+        assert pi.sum(axis=1) == pytest.approx(np.ones(len(names)), abs=1e-15)
+        for i, m in enumerate(MANOEUVRE_MODELS):
+            assert pi[i, i] == pytest.approx(math.exp(-dt / m.sojourn_s), rel=1e-14)
+            targets = [j for j in range(len(names)) if j != i and (m.exits_to is None or names[j] in m.exits_to)]
+            others = [j for j in range(len(names)) if j != i and j not in targets]
+            assert pi[i, targets] == pytest.approx(np.full(len(targets), (1.0 - pi[i, i]) / len(targets)), rel=1e-14)
+            assert all(pi[i, j] == 0.0 for j in others)
+    with pytest.raises(ValueError, match="exits_to"):
+        AttitudeConfig(
+            imm_models=(CA, MotionModel(name="x", kind="ca", sigma_jerk_mps3=1.0, sojourn_s=9.0, exits_to=("nope",)))
+        )
 
 
 def test_mixing_probabilities_sum_to_one_and_mixing_is_convex() -> None:

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from conftest import REPO
 
+from services.attitude.config import CA_MODELS
 from services.attitude.evaluation import evaluation_config, run_monte_carlo
 from services.attitude.flights import FILES
 from services.attitude.metrics import phase_table
@@ -24,14 +25,20 @@ from tools.montecarlo import run_montecarlo
 SCENARIOS = REPO / "scenarios"
 
 
-def family_run(names: list[str], preset: str, runs: int) -> tuple[dict[str, Any], dict[str, int]]:
-    """Pooled phase table and summed core counters of the scenario files ``names`` with ``preset``."""
+#: the default preset with the model bank it had before the coordinated-turn model (issue 15, first round)
+CA_BANK: dict[str, Any] = {"preset": "manoeuvre", "imm_models": [m.model_dump(mode="json") for m in CA_MODELS]}
+
+
+def family_run(names: list[str], preset: str | dict[str, Any], runs: int) -> tuple[dict[str, Any], dict[str, int]]:
+    """Pooled phase table and summed core counters of the scenario files ``names`` with ``preset`` (a preset name
+    or a configuration)."""
     parts: list[dict[str, Any]] = []
     core: dict[str, int] = {}
+    config = {"preset": preset} if isinstance(preset, str) else preset
     for name in names:
         sc = load_scenario(SCENARIOS / f"{name}.yaml")
         est = sc.estimators[0]
-        params = {**dict(est.params), "reference": False, "config": {"preset": preset}}
+        params = {**dict(est.params), "reference": False, "config": config}
         sc = sc.model_copy(update={"estimators": [est.model_copy(update={"params": params})]})
         agg = run_montecarlo(sc, runs, seed=1, workers=1, progress=False)["aggregate"]["estimators"][est.instance]
         parts += agg["phase_samples"]
@@ -75,10 +82,12 @@ def check_family(names: list[str], runs: int, turn_ratio_max: float) -> None:
             d, p = default[phase]["rms_deg"][angle], paper[phase]["rms_deg"][angle]
             assert d <= p, (phase, angle, d, p)
     # NEES: the paper filter is off by orders of magnitude in turns (the issue: 40-460); the IMM's ANEES is
-    # within a factor 3 of its expectation 9 in turns and on straight legs (docs: the full-size band figures)
+    # optimistic in turns by a factor ~2 (N = 50: 15.8 pooled, 15.0 light turns, 8.5 transport; light turns at
+    # N = 3: 12.8-17.9 over seeds 1-5) and conservative on straight legs by a factor 2-3 (N = 50: 4.0): the
+    # manoeuvre models' share of the mixture (docs: the full-size band figures and why)
     assert paper["turn"]["nees"]["anees_mean"] > 30.0
-    for phase in ("turn", "straight"):
-        assert 3.0 <= default[phase]["nees"]["anees_mean"] <= 27.0, (phase, default[phase]["nees"])
+    assert 4.5 <= default["turn"]["nees"]["anees_mean"] <= 20.0, default["turn"]["nees"]
+    assert 2.5 <= default["straight"]["nees"]["anees_mean"] <= 9.0, default["straight"]["nees"]
     # VALID means what it says: a consistent sigma puts 95.4 % of Gaussian errors within 2 sigma; the share of
     # VALID estimates within 2 sigma must not fall below the binomial 3-sigma bound of that (conservative is fine)
     frac, n = valid_within_2sigma(default)
@@ -93,6 +102,22 @@ def test_light_aircraft_turns_default_against_paper() -> None:
     """Six light aircraft (75-120 m/s, 15-45 deg bank) x 3 runs per preset. The turn bound 0.8 is the full-size
     ratio (0.6 at N = 100, bench) plus the paired comparison's spread at N = 3 (0.55-0.65 over seeds 1-5)."""
     check_family(["attitude_turns_light"], runs=3, turn_ratio_max=0.8)
+
+
+def test_light_aircraft_turns_ct_bank_against_the_ca_bank() -> None:
+    """The default bank (straight, coordinated turn, onset) against the bank it replaced (Singer straight, CA
+    manoeuvre, CA onset), paired on the same plots: six light aircraft x 3 runs. Over seeds 1-5 at this N the
+    default was better in every row below (turn heading by 3-12 %, turn ANEES 12.8-17.9 against 16.8-20.6,
+    straight and steady heading, pitch and roll), so the bounds are the plain comparisons."""
+    ct, core_ct = family_run(["attitude_turns_light"], "manoeuvre", 3)
+    ca, _ = family_run(["attitude_turns_light"], CA_BANK, 3)
+    assert core_ct.get("innovation_gate", 0) == 0 and core_ct.get("reset_nis", 0) == 0, core_ct
+    assert ct["turn"]["rms_deg"]["psi"] < ca["turn"]["rms_deg"]["psi"]
+    a_ct, a_ca = ct["turn"]["nees"]["anees_mean"], ca["turn"]["nees"]["anees_mean"]
+    assert abs(a_ct - 9.0) < abs(a_ca - 9.0), (a_ct, a_ca)
+    for phase in ("straight", "steady"):
+        for angle in ("psi", "theta", "gamma"):
+            assert ct[phase]["rms_deg"][angle] <= ca[phase]["rms_deg"][angle], (phase, angle)
 
 
 def test_default_is_no_worse_than_paper_on_the_papers_straight_flight() -> None:

@@ -304,19 +304,27 @@ def test_plot_older_than_the_last_is_dropped_flagged_and_leaves_the_state() -> N
     counters_add_up(svc)
 
 
-def test_missing_scans_widen_the_sigmas_and_a_long_gap_resets() -> None:
+@pytest.mark.parametrize("preset", ["paper", "manoeuvre"])
+def test_missing_scans_widen_the_sigmas_and_a_long_gap_resets(preset: str) -> None:
+    """Two missed scans are predicted over (SCANS_MISSED), four reset. The single filter of preset paper predicts
+    P through M over the gap, so every LOS sigma after it is wider than with the two plots. The default preset's
+    IMM need not be: over the gap the onset model's prediction spreads so far that the one plot after it leaves
+    that model less probable than the two plots would have, and its spread is most of the mixture's sigma on a
+    straight leg (the coordinated-turn bank: sigma(theta_los) 1.24 deg after the gap against 1.29 with the plots).
+    There the estimate must stay consistent with the truth and with the gap-free estimate (a jump within 3 sigma
+    of the two estimates' combined uncertainty)."""
     targets = [
         {"id": "a", "plan": "paper"},
         {"id": "gap2", "plan": "paper", "missed_scans": [42, 43]},  # 15 s between plots: predicted over
         {"id": "gap4", "plan": "paper", "missed_scans": [42, 43, 44, 45]},  # 25 s > 3.5 T: reset
     ]
     scenario = build_scenario(targets, duration_s=400.0)
-    svc = make_service()
+    svc = make_service(preset=preset)
     feed = inputs_of(svc, all_events(scenario))
     out = svc.run_offline(feed)
     truth_feed = all_events(scenario)
     # the same plots without the gap (each target's noise has its own stream, so dropping scans changes nothing else)
-    clean_svc = make_service()
+    clean_svc = make_service(preset=preset)
     no_gap = build_scenario([{"id": "gap2", "plan": "paper"}], duration_s=400.0)
     clean_by_t = {
         e.header.stamp_ns: e for e in estimates(clean_svc.run_offline(inputs_of(clean_svc, all_events(no_gap))))
@@ -326,12 +334,15 @@ def test_missing_scans_widen_the_sigmas_and_a_long_gap_resets() -> None:
     t_after = after.header.stamp_ns
     assert t_after == round(215e9) and after.status in ("VALID", "CONVERGING") and after.n_updates == 42
     ref = clean_by_t[t_after]
-    # wider sigmas than with the two plots, and the angles move by less than the extra uncertainty allows
+    # paper: wider sigmas than with the two plots, and the angles move by less than the extra uncertainty allows
     for field in ("psi_los_deg", "theta_los_deg", "gamma_los_deg"):
         s_gap, s_ref = getattr(after, f"sigma_{field}"), getattr(ref, f"sigma_{field}")
-        assert s_gap > s_ref, field
         jump = abs((getattr(after, field) - getattr(ref, field) + 180.0) % 360.0 - 180.0)
-        assert jump < 3.0 * math.sqrt(s_gap**2 - s_ref**2) + 1e-9, (field, jump, s_gap, s_ref)
+        if preset == "paper":
+            assert s_gap > s_ref, field
+            assert jump < 3.0 * math.sqrt(s_gap**2 - s_ref**2) + 1e-9, (field, jump, s_gap, s_ref)
+        else:
+            assert jump < 3.0 * math.sqrt(s_gap**2 + s_ref**2), (field, jump, s_gap, s_ref)
     truth = truths_of(truth_feed, "gap2")[t_after]
     errs = los_errors(after, truth)
     assert all(

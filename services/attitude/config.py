@@ -42,41 +42,101 @@ _UNSET = object()
 
 
 class MotionModel(BaseModel):
-    """One motion model of the interacting-multiple-model (IMM) bank, over the same 9-state as eq. (3).
+    """One motion model of the interacting-multiple-model (IMM) bank, over the 9-state of eq. (3) (plus the turn
+    rate omega in a bank with a ``ct`` model, imm.py).
 
     * ``ca``: the paper's constant-acceleration model driven by random jerk (eq. 3, M = S^T D S) of standard
       deviation ``sigma_jerk_mps3`` (m/s^3);
     * ``singer``: the acceleration is mean-reverting (first-order Markov, correlation time ``tau_s``) with
       stationary standard deviation ``sigma_accel_mps2``: non-manoeuvring flight, whose acceleration wanders
-      about zero (turbulence, pilot corrections) instead of drifting like the CA model's random walk.
+      about zero (turbulence, pilot corrections) instead of drifting like the CA model's random walk;
+    * ``ct``: the nearly coordinated turn (models.ct_predict): a turn-rate state omega, a random walk of
+      ``sigma_turn_rate_dps`` (deg/s over 1 s), and a horizontal acceleration omega x V_h plus a Singer deviation
+      (``sigma_accel_mps2``, ``tau_s``; the vertical axis a Singer model of the same); ``ct_prediction`` chooses
+      the Gauss-Hermite quadrature over omega (default) or the EKF.
 
     ``sojourn_s``: mean time (s) the aircraft stays in this mode; the Markov switching probability over a step
-    dt is 1 - exp(-dt / sojourn_s), shared equally among the other models.
+    dt is 1 - exp(-dt / sojourn_s), shared equally among the other models (or among those named in
+    ``exits_to``: a turn ends in straight flight or a new onset, not in another model).
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     name: str = Field(min_length=1, max_length=32, description="label in outputs and docs")
-    kind: Literal["ca", "singer"] = Field(description="ca: random jerk (eq. 3); singer: mean-reverting acceleration")
+    kind: Literal["ca", "singer", "ct"] = Field(
+        description="ca: random jerk (eq. 3); singer: mean-reverting acceleration; ct: nearly coordinated turn"
+    )
     sigma_jerk_mps3: float | None = Field(default=None, ge=0.0, le=100.0, description="ca: jerk std, m/s^3")
-    sigma_accel_mps2: float | None = Field(default=None, gt=0.0, le=100.0, description="singer: accel std, m/s^2")
-    tau_s: float | None = Field(default=None, gt=0.0, le=1e5, description="singer: correlation time, s")
+    sigma_accel_mps2: float | None = Field(
+        default=None,
+        gt=0.0,
+        le=100.0,
+        description="singer: accel std; ct: std of the deviation from a coordinated turn",
+    )
+    tau_s: float | None = Field(default=None, gt=0.0, le=1e5, description="singer, ct: correlation time, s")
+    sigma_turn_rate_dps: float | None = Field(
+        default=None, ge=0.0, le=100.0, description="ct: random-walk std of the turn rate over 1 s, deg/s"
+    )
+    ct_prediction: Literal["quadrature", "ekf"] = Field(
+        default="quadrature",
+        description="ct: prediction by Gauss-Hermite quadrature over the turn rate (exact given omega) or by the "
+        "EKF's linearisation in omega",
+    )
     sojourn_s: float = Field(gt=0.0, le=1e7, description="mean time in this mode, s")
+    exits_to: tuple[str, ...] | None = Field(
+        default=None,
+        max_length=8,
+        description="names of the models this mode switches to (its switching probability shared equally among "
+        "them); None: all the others",
+    )
 
     @model_validator(mode="after")
     def _parameters(self) -> MotionModel:
         if self.kind == "ca" and (self.sigma_jerk_mps3 is None or self.sigma_accel_mps2 is not None):
             raise ValueError("a ca model takes sigma_jerk_mps3 (and no sigma_accel_mps2)")
-        if self.kind == "singer" and (self.sigma_accel_mps2 is None or self.tau_s is None or self.sigma_jerk_mps3):
-            raise ValueError("a singer model takes sigma_accel_mps2 and tau_s (and no sigma_jerk_mps3)")
+        if self.kind in ("singer", "ct") and (
+            self.sigma_accel_mps2 is None or self.tau_s is None or self.sigma_jerk_mps3 is not None
+        ):
+            raise ValueError(f"a {self.kind} model takes sigma_accel_mps2 and tau_s (and no sigma_jerk_mps3)")
+        if (self.kind == "ct") != (self.sigma_turn_rate_dps is not None):
+            raise ValueError("sigma_turn_rate_dps is the ct model's (and only its) turn-rate noise")
         return self
 
+    @property
+    def q_omega(self) -> float:
+        """ct: spectral density of the turn rate's random walk, rad^2/s^3."""
+        s = math.radians(self.sigma_turn_rate_dps or 0.0)
+        return s * s
 
-#: the manoeuvre-robust model bank (docs/attitude.md, "Manoeuvres"): straight flight with wandering acceleration,
-#: a manoeuvre model (turns, pull-ups) and a manoeuvre-onset model (roll-in, roll-out, load-factor steps)
-MANOEUVRE_MODELS: tuple[MotionModel, ...] = (
+
+#: the default preset's first model bank (issue 15, before the coordinated-turn model): straight flight with
+#: wandering acceleration, a manoeuvre model (turns, pull-ups) and a manoeuvre-onset model (roll-in, roll-out,
+#: load-factor steps); kept for comparison (bench_attitude_manoeuvre's ``manoeuvre_ca``)
+CA_MODELS: tuple[MotionModel, ...] = (
     MotionModel(name="straight", kind="singer", sigma_accel_mps2=0.2, tau_s=20.0, sojourn_s=300.0),
     MotionModel(name="manoeuvre", kind="ca", sigma_jerk_mps3=0.3, sojourn_s=60.0),
+    MotionModel(name="onset", kind="ca", sigma_jerk_mps3=1.0, sojourn_s=20.0),
+)
+
+#: the manoeuvre-robust model bank of the default preset (docs/attitude.md, "Manoeuvres"):
+#:
+#: * ``straight``: nearly constant velocity (a Singer acceleration of 0.2 m/s^2 that decorrelates in 1 s): the
+#:   most accurate model of level flight at these radar errors, and the one that forgets a turn's acceleration
+#:   within a scan when the turn ends;
+#: * ``turn``: the nearly coordinated turn (CT) with a turn-rate state (models.ct_predict): a steady turn
+#:   predicted as a turn, its acceleration turning with the velocity; it ends in straight flight (or a new onset);
+#: * ``onset``: the paper's CA model at sigma_j = 1 m/s^3: roll-in, roll-out, pull-ups, load-factor steps.
+MANOEUVRE_MODELS: tuple[MotionModel, ...] = (
+    MotionModel(name="straight", kind="singer", sigma_accel_mps2=0.2, tau_s=1.0, sojourn_s=200.0),
+    MotionModel(
+        name="turn",
+        kind="ct",
+        sigma_accel_mps2=0.3,
+        tau_s=5.0,
+        sigma_turn_rate_dps=0.1,
+        sojourn_s=20.0,
+        exits_to=("straight", "onset"),
+    ),
     MotionModel(name="onset", kind="ca", sigma_jerk_mps3=1.0, sojourn_s=20.0),
 )
 
@@ -249,6 +309,10 @@ class AttitudeConfig(BaseModel):
             raise ValueError("sigma_jerk_mps3 must be finite and >= 0")
         if any(not math.isfinite(s) or s <= 0.0 for s in self.jacobian_steps):
             raise ValueError("jacobian_steps must be finite and > 0")
+        names = [m.name for m in self.imm_models]
+        for m in self.imm_models:
+            if m.exits_to is not None and (not m.exits_to or not set(m.exits_to) <= set(names) - {m.name}):
+                raise ValueError(f"imm_models: {m.name}.exits_to must name other models of the bank")
         mu0 = self.imm_initial_probabilities
         if mu0 is not None and (
             len(mu0) != len(self.imm_models) or any(not 0.0 < m <= 1.0 for m in mu0) or abs(sum(mu0) - 1.0) > 1e-9

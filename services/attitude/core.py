@@ -335,14 +335,15 @@ class AttitudeCore:
         tr.n_updates = len(tr.buffer)
         tr.buffer.clear()
         if self._imm:
-            tr.imm = imm.ImmState.start(x, p, self._mu0)
+            tr.imm = imm.ImmState.start(x, p, self._mu0, self._models)
         return True
 
     def _predict(self, tr: _Track, dt_s: float) -> tuple[F64, F64]:
         """The state's (mixture's) prediction over dt_s: B alpha, B P B^T + M, or the IMM's predicted moments."""
         assert tr.x is not None and tr.p is not None
         if tr.imm is not None:
-            return imm.predict_combined(tr.imm, self._models, dt_s)
+            x, p = imm.predict_combined(tr.imm, self._models, dt_s)
+            return x[:9], p[:9, :9]
         return predict(tr.x, tr.p, dt_s, self._d_a)
 
     def _kf_step(
@@ -410,7 +411,7 @@ class AttitudeCore:
         dt = (t - tr.t_ns) / NS if tr.t_ns is not None else 0.0
         c, xp, pp = imm.predict(tr.imm, self._models, dt)
         try:
-            res: imm.ImmUpdate | None = imm.update_models(c, xp, pp, z, rz)
+            res: imm.ImmUpdate | None = imm.update_models(c, xp, pp, z, rz, self._models)
         except np.linalg.LinAlgError:
             res = None
         # the gate statistic is at most the smallest per-model NIS (the widening only enlarges S): compute it only
@@ -429,7 +430,8 @@ class AttitudeCore:
             self.counters["reset_covariance"] += 1
             return None
         tr.imm = res.state
-        self._accept(tr, t, z, res.x, res.p, res.nis, flags, period_ns)
+        # the output is the 9-state of eq. (3) (a CT model's turn rate, index 9, is internal to the IMM)
+        self._accept(tr, t, z, res.x[:9].copy(), res.p[:9, :9].copy(), res.nis, flags, period_ns)
         return res.nis
 
     # ------------------------------------------------------------------ outputs

@@ -46,7 +46,8 @@ def innovation(x_pred: F64, p_pred: F64, z: F64, rz: F64) -> tuple[F64, F64]:
 
 
 def update(x_pred: F64, p_pred: F64, z: F64, rz: F64) -> tuple[F64, F64, float]:
-    """Kalman update with a position measurement (eq. 3, Joseph form); returns (alpha, R_alpha, NIS).
+    """Kalman update with a position measurement (eq. 3, Joseph form); returns (alpha, R_alpha, NIS). The state may
+    extend the 9-state of eq. (3) by components after the ninth (the IMM's turn rate); H picks the positions.
 
     S = H R~ H^T + R_z is factorised S = L L^T (Cholesky); K = R~ H^T L^-T L^-1 and NIS = |L^-1 nu|^2.
     Raises numpy.linalg.LinAlgError if S is not positive definite.
@@ -77,7 +78,7 @@ def update(x_pred: F64, p_pred: F64, z: F64, rz: F64) -> tuple[F64, F64, float]:
     nis = float(e @ e)
     k = (pht @ w.T) @ w
     x = x_pred + k @ nu
-    i_kh = _I9.copy()
+    i_kh = _I9.copy() if x_pred.shape[0] == 9 else np.eye(x_pred.shape[0])
     i_kh[:, POS] -= k
     p = i_kh @ p_pred @ i_kh.T + k @ rz @ k.T  # Joseph form
     return x, 0.5 * (p + p.T), nis

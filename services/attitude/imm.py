@@ -2,15 +2,16 @@
 
 The paper's filter (eq. 3) has one random-jerk level D: small D lags in turns, large D is noisy on straight
 legs (digest §4.5, §5.7). The IMM (Blom & Bar-Shalom 1988; Bar-Shalom, Li & Kirubarajan 2001, §11.6) runs one
-Kalman filter per motion model j = 1..M (:class:`~.config.MotionModel`: the paper's CA model at several jerk
-levels, or a Singer model of mean-reverting acceleration) on the same state alpha, and a Markov chain over the
-models with transition probabilities pi_ij over a step dt (p_ii = exp(-dt / sojourn_i), the rest shared equally).
-One cycle, for a plot z with covariance R_z at dt after the last:
+filter per motion model j = 1..M (:class:`~.config.MotionModel`: the paper's CA model at several jerk levels, a
+Singer model of mean-reverting acceleration, or a nearly coordinated turn (CT) with a turn-rate state) and a Markov
+chain over the models with transition probabilities pi_ij over a step dt (p_ii = exp(-dt / sojourn_i), the rest
+shared equally). One cycle, for a plot z with covariance R_z at dt after the last:
 
 1. mixing:      c_j = sum_i pi_ij mu_i,   mu_i|j = pi_ij mu_i / c_j,
                 alpha0_j = sum_i mu_i|j alpha_i,
                 P0_j = sum_i mu_i|j [P_i + (alpha_i - alpha0_j)(alpha_i - alpha0_j)^T];
-2. per model:   alpha~_j = F_j alpha0_j,  P~_j = F_j P0_j F_j^T + Q_j           (eq. 3 with the model's F, Q)
+2. per model:   alpha~_j = F_j alpha0_j,  P~_j = F_j P0_j F_j^T + Q_j           (eq. 3 with the model's F, Q;
+                                                                                the CT model: see below)
                 nu_j = z - H alpha~_j,    S_j = H P~_j H^T + R_z,                Lambda_j = N(nu_j; 0, S_j)
                 alpha_j, P_j: the Kalman update of eq. (3) (Joseph form, filter.update);
 3. probability: mu_j = Lambda_j c_j / sum_k Lambda_k c_k;
@@ -19,6 +20,27 @@ One cycle, for a plot z with covariance R_z at dt after the last:
 The angles (eqs. 4-5) and their sigmas are computed from the output (alpha, P), the first two moments of the
 Gaussian mixture, so a sigma covers the spread between the models as well as each model's own uncertainty.
 With one model (or M equal models) the cycle is exactly the Kalman filter of eq. (3).
+
+**Models of different state.** The CT model (:func:`~.models.ct_step`, Bar-Shalom, Li & Kirubarajan §11.7; Li &
+Jilkov 2003, "Survey of maneuvering target tracking, part I", §4) needs the turn rate omega, which the CA and
+Singer models do not carry. Two ways are usual: augment every model with omega (the CV/CA models with a dummy
+omega of their own, mixed like any component), or mix only the common sub-state. Here every model of a bank with a
+CT model holds the 10-state [alpha, omega], but a CA/Singer model's omega is not a state of its own: after each
+update (and at the start) it is set to the turn rate its own velocity and acceleration imply,
+omega = (Vx az - Vz ax) / V_h^2, with first-order moments (:func:`augment`). So
+
+* mixing INTO a CA/Singer model uses only the 9-state part: exactly the mixing of the common sub-state (its
+  omega is overwritten after the update and never enters its dynamics);
+* mixing INTO the CT model mixes full 10-states: the CT model's own omega (its memory of the turn) with the
+  turn rates the other models' accelerations imply, weighted by mu_i|j like every other component. A dummy omega
+  of a CA model would instead drift away from what its acceleration says and feed the CT model a turn rate that
+  no data supports; mixing the common sub-state only would restart the CT model's omega from its own last value
+  whatever the other models saw (at a roll-in, the onset model sees the turn first).
+
+The CT model's prediction (:func:`~.models.ct_predict`) integrates the exact transition given omega over omega's
+Gaussian by Gauss-Hermite quadrature (``ct_prediction: ekf``: the EKF of :func:`~.models.ct_step`, the exact
+Jacobian of the discrete map, its omega column the Frechet derivative of expm). The output (alpha, P) is the
+9-state part of the mixture; the turn rate stays internal.
 """
 
 from __future__ import annotations
@@ -32,7 +54,7 @@ import numpy as np
 from .config import MotionModel
 from .filter import update
 from .geometry import F64
-from .models import POS, block_diagonal, process_noise, singer_axis, transition
+from .models import OMEGA, POS, block_diagonal, ct_predict, ct_step, process_noise, singer_axis, transition, turn_rate
 
 _LOG_2PI = math.log(2.0 * math.pi)
 
@@ -58,31 +80,84 @@ def model_matrices(model: MotionModel, dt_s: float) -> tuple[F64, F64]:
 @lru_cache(maxsize=256)
 def transition_probabilities(models: tuple[MotionModel, ...], dt_s: float) -> F64:
     """pi (M x M), pi[i, j] = P(model j at t + dt | model i at t): p_ii = exp(-|dt| / sojourn_i), the rest of
-    row i shared equally among the other models. Rows sum to 1."""
+    row i shared equally among the other models (those named in the model's ``exits_to``, if given). Rows sum
+    to 1."""
     m = len(models)
     if m == 1:
         pi = np.ones((1, 1))
     else:
-        stay = np.array([math.exp(-abs(dt_s) / mod.sojourn_s) for mod in models])
-        pi = np.repeat(((1.0 - stay) / (m - 1))[:, None], m, axis=1)
-        np.fill_diagonal(pi, stay)
+        names = [mod.name for mod in models]
+        pi = np.zeros((m, m))
+        for i, mod in enumerate(models):
+            stay = math.exp(-abs(dt_s) / mod.sojourn_s)
+            targets = [j for j in range(m) if j != i and (mod.exits_to is None or names[j] in mod.exits_to)]
+            pi[i, targets] = (1.0 - stay) / len(targets)
+            pi[i, i] = stay
     pi.setflags(write=False)
     return pi
 
 
+def state_dim(models: tuple[MotionModel, ...]) -> int:
+    """9 (the state of eq. 3), or 10 when the bank has a coordinated-turn model (the turn rate appended)."""
+    return 10 if any(m.kind == "ct" for m in models) else 9
+
+
+#: turn rates implied by a CA/Singer state are capped at this standard deviation (rad/s, 17 deg/s: beyond any
+#: aircraft's sustained turn) before a CT model mixes them in: right after the FSF start the acceleration is
+#: known to tens of m/s^2, and a turn-rate spread of rad/s would spread the CT model's prediction over circles
+OMEGA_SIGMA_CAP = 0.3
+#: the variance (rad^2/s^2) added to an implied turn rate: it is a function of the state, so its covariance with
+#: the state would otherwise be singular
+OMEGA_NUGGET = 1e-8
+
+
+def augment(x: F64, p: F64) -> None:
+    """In place: set the turn rate (index 9) of a 10-state to the one its velocity and acceleration imply,
+    omega = (Vx az - Vz ax) / V_h^2, with first-order moments: cov(omega, alpha) = g^T P, var = g^T P g + nugget
+    (g = d(omega)/d(alpha)). This is the CA and Singer models' view of the turn rate, which they do not carry:
+    a CT model mixes it in like any other component. A variance above OMEGA_SIGMA_CAP^2 is scaled down to it
+    with its covariances (a congruence D P D, D = diag(1, .., 1, s), so P stays positive semi-definite); the mean
+    is clipped to +-1 rad/s (a state of a diverging start, not an aircraft)."""
+    w, g = turn_rate(x)
+    p9g = p[:9, :9] @ g
+    var = float(g @ p9g)
+    s = 1.0 if var <= OMEGA_SIGMA_CAP * OMEGA_SIGMA_CAP else OMEGA_SIGMA_CAP / math.sqrt(var)
+    x[OMEGA] = max(-1.0, min(1.0, w))
+    p[OMEGA, :9] = s * p9g
+    p[:9, OMEGA] = s * p9g
+    p[OMEGA, OMEGA] = s * s * var + OMEGA_NUGGET
+
+
+def _augment_models(xs: F64, ps: F64, models: tuple[MotionModel, ...]) -> None:
+    """:func:`augment` every CA/Singer model of a 10-state bank (in place)."""
+    if xs.shape[1] == 10:
+        for j, model in enumerate(models):
+            if model.kind != "ct":
+                augment(xs[j], ps[j])
+
+
 @dataclass
 class ImmState:
-    """Per-model estimates alpha_j (M, 9), covariances P_j (M, 9, 9) and model probabilities mu (M,)."""
+    """Per-model estimates alpha_j (M, n), covariances P_j (M, n, n) and model probabilities mu (M,); n = 9, or
+    10 with a CT model in the bank (:func:`state_dim`; the CA/Singer models' omega is the implied one)."""
 
     xs: F64
     ps: F64
     mu: F64
 
     @classmethod
-    def start(cls, x: F64, p: F64, mu0: tuple[float, ...]) -> ImmState:
-        """Every model starts from the same estimate (the FSF start, eq. 2) with probabilities mu0."""
+    def start(cls, x: F64, p: F64, mu0: tuple[float, ...], models: tuple[MotionModel, ...] | None = None) -> ImmState:
+        """Every model starts from the same estimate (the FSF start, eq. 2) with probabilities mu0; with a CT model
+        in ``models`` the state gets the implied turn rate (:func:`augment`)."""
         m = len(mu0)
-        return cls(np.repeat(x[None], m, axis=0), np.repeat(p[None], m, axis=0), np.asarray(mu0, dtype=np.float64))
+        n = 9 if models is None else state_dim(models)
+        x0 = np.zeros(n)
+        p0 = np.zeros((n, n))
+        x0[:9] = x[:9]
+        p0[:9, :9] = p[:9, :9]
+        if n == 10:
+            augment(x0, p0)
+        return cls(np.repeat(x0[None], m, axis=0), np.repeat(p0[None], m, axis=0), np.asarray(mu0, dtype=np.float64))
 
     def copy(self) -> ImmState:
         return ImmState(self.xs.copy(), self.ps.copy(), self.mu.copy())
@@ -115,9 +190,26 @@ def predict(state: ImmState, models: tuple[MotionModel, ...], dt_s: float) -> tu
     xp = np.empty_like(x0)
     pp = np.empty_like(p0)
     for j, model in enumerate(models):
+        if model.kind == "ct":  # quadrature over omega (or the EKF's linearisation): models.ct_predict / ct_step
+            assert model.sigma_accel_mps2 is not None and model.tau_s is not None
+            if model.ct_prediction == "quadrature":
+                xp[j], pp[j] = ct_predict(x0[j], p0[j], float(dt_s), model.sigma_accel_mps2, model.tau_s, model.q_omega)
+            else:
+                xp[j], f, q = ct_step(x0[j], float(dt_s), model.sigma_accel_mps2, model.tau_s, model.q_omega)
+                pp[j] = f @ p0[j] @ f.T + q
+            continue
         f, q = model_matrices(model, float(dt_s))
-        xp[j] = f @ x0[j]
-        pp[j] = f @ p0[j] @ f.T + q
+        if x0.shape[1] == 9:
+            xp[j] = f @ x0[j]
+            pp[j] = f @ p0[j] @ f.T + q
+        else:  # the implied turn rate is carried along unchanged and re-derived after the update
+            xp[j, :9] = f @ x0[j, :9]
+            xp[j, 9] = x0[j, 9]
+            fp = f @ p0[j, :9, :]
+            pp[j, :9, :9] = fp[:, :9] @ f.T + q
+            pp[j, :9, 9] = fp[:, 9]
+            pp[j, 9, :9] = fp[:, 9]
+            pp[j, 9, 9] = p0[j, 9, 9]
     return c, xp, pp
 
 
@@ -139,7 +231,9 @@ class ImmUpdate:
     log_likelihood: F64  # log Lambda_j (M,)
 
 
-def update_models(c: F64, xp: F64, pp: F64, z: F64, rz: F64) -> ImmUpdate:
+def update_models(
+    c: F64, xp: F64, pp: F64, z: F64, rz: F64, models: tuple[MotionModel, ...] | None = None
+) -> ImmUpdate:
     """Steps 2 (update) to 4 from the predicted probabilities c and per-model predictions (``predict``), with the
     plot z (m, frame E) of covariance R_z. Raises numpy.linalg.LinAlgError if an innovation covariance is not
     positive definite."""
@@ -151,6 +245,8 @@ def update_models(c: F64, xp: F64, pp: F64, z: F64, rz: F64) -> ImmUpdate:
     for j in range(m):
         xs[j], ps[j], nis_j[j] = update(xp[j], pp[j], z, rz)
         loglik[j] = -0.5 * (nis_j[j] + math.log(_det3((pp[j][POS, POS] + rz).tolist())) + 3.0 * _LOG_2PI)
+    if models is not None:
+        _augment_models(xs, ps, models)
     lw = loglik + np.log(np.maximum(c, 1e-300))
     lw -= lw.max()
     mu = np.exp(lw)
@@ -170,7 +266,7 @@ def _det3(s: list[list[float]]) -> float:
 
 def step(state: ImmState, models: tuple[MotionModel, ...], dt_s: float, z: F64, rz: F64) -> ImmUpdate:
     """One IMM cycle (steps 1-4) with plot z of covariance R_z (``predict`` then ``update_models``)."""
-    return update_models(*predict(state, models, dt_s), z, rz)
+    return update_models(*predict(state, models, dt_s), z, rz, models)
 
 
 def gate_nis(xp: F64, pp: F64, z: F64, rz: F64, widen_m: float) -> float:
