@@ -69,7 +69,7 @@ class PclTracker:
         #: running metrics (digest §5.7)
         self.metrics: Counter[str] = Counter()
         self.front = FrontEnd(cfg, self.metrics)
-        self._given: dict[str, object] = {
+        self._given: dict[str, Any] = {
             k: v
             for k, v in (
                 ("predictor", predictor),
@@ -159,6 +159,26 @@ class PclTracker:
         ghost.t_ns = stamp_ns
         scan_id = self.last_scan_id if self.last_scan_id is not None else 0
         return self.reports.track_reports([ghost], scan_id, stamp_ns, ScanWork(), None, self.tx)[0]
+
+    def successor(self) -> PclTracker:
+        """A fresh tracker for the next run: same configuration and components, track ids continuing."""
+        nxt = PclTracker(self.config, **self._given)
+        nxt.next_track_id = self.next_track_id
+        return nxt
+
+    def status(self) -> dict[str, Any]:
+        """The core's figures for a status report: counts of scans, tracks, candidates and the §5.7 metrics."""
+        return {
+            "scans_processed": self.metrics["scans"],
+            "buffered_scans": len(self.front.buffer),
+            "last_scan_id": self.last_scan_id,
+            "live_tracks": len(self.tracks),
+            "tentative": sum(1 for t in self.tracks.values() if t.status == "TENTATIVE"),
+            "confirmed": sum(1 for t in self.tracks.values() if t.status == "CONFIRMED"),
+            "candidates": len(self.candidates),
+            "next_track_id": self.next_track_id,
+            "core_metrics": dict(self.metrics),
+        }
 
     # the front end's view of the stream, as attributes of the tracker
     @property
