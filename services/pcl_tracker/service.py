@@ -127,6 +127,7 @@ class PclTrackerService(Service):
 
     def status_extra(self) -> dict[str, Any]:
         core = self.core.status()
+        metrics = core.pop("core_metrics")
         return {
             "pair": {"receiver_id": self.core.receiver_id, "illuminator_id": self.core.illuminator_id},
             "in_key": self.in_key,
@@ -138,6 +139,7 @@ class PclTrackerService(Service):
             "plots_rejected": sum(self.plots_rejected.values()),
             "plots_rejected_by_reason": dict(self.plots_rejected),
             "scan_events": dict(self.scan_events),
+            "core_metrics": metrics,
             "last_scan_ms": self.last_scan_ms,
             "max_scan_ms": round(self.max_scan_ms, 3),
             "mean_scan_ms": round(self.total_scan_ms / self.timed_scans, 3) if self.timed_scans else None,
