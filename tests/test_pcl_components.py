@@ -352,3 +352,18 @@ def test_components_are_declared_with_config_defaults_and_swappable() -> None:
     assert all(tr.coasted and not tr.updated and tr.hits == 2 for s, tr in first if s > 2)
     assert first[-1][1].status == "DROPPED" and first[-1][1].drop_reason == "K_misses"
     assert [r.n_initiated for r in reps] == [0, 1, 0, 1, 0, 1, 0, 1]
+
+
+def test_successor_and_restore_keep_given_components_and_a_new_config_rebuilds_the_defaults() -> None:
+    """The next run's tracker (service ``new_run``) and a restored one keep a swapped component; assigning a
+    configuration rebuilds only the components that were not given (here M/N follows the new confirm_M)."""
+    t = CFG.tracker
+    trk = PclTracker(CFG, associator=NoAssociation(t))
+    for s in scans(4):
+        trk.step(s)
+    nxt = trk.successor()
+    assert isinstance(nxt.associator, NoAssociation) and nxt.next_track_id == trk.next_track_id and not nxt.tracks
+    back = PclTracker.restore(trk.snapshot(), associator=NoAssociation(t))
+    assert isinstance(back.associator, NoAssociation) and back.snapshot() == trk.snapshot()
+    trk.config = CFG.with_tracker(confirm_M=2, confirm_N=3)
+    assert isinstance(trk.associator, NoAssociation) and (trk.confirmer.M, trk.confirmer.N) == (2, 3)
