@@ -16,7 +16,8 @@
 * ``scenarios/tracks/adsb_turn.csv`` (``attitude`` and ``pcl_tracker``): an ADS-B-like aircraft track, 1 Hz,
   300 s, ISO-8601 UTC times, WGS84 latitude/longitude and height: 200 m/s level at 5000 m over the local
   frame at 45.0 N 7.0 E (where the scenarios put the radar or the PCL receiver), heading 110 deg for 100 s,
-  a coordinated right turn at 1.5 deg/s for 60 s (28 deg of bank) to heading 200 deg, then straight for 140 s.
+  a coordinated right turn to heading 200 deg (4 s roll-in at 0.5 then 1 deg/s, 56 s at 1.5 deg/s = 28 deg of bank,
+  4 s roll-out), then straight for 136 s.
   Position noise as ADS-B reports it: 3 m (1 sigma) white per horizontal axis and the height quantised to
   25 ft (the barometric altitude's resolution: 2.2 m RMS). No velocity or attitude columns: the player's
   smoothing spline (GCV) differentiates it and the attitude follows from the velocity and acceleration.
@@ -44,6 +45,8 @@ ADSB_TRACK = TRACKS / "adsb_turn.csv"
 ADSB_ORIGIN = GeoPoint(lat_deg=45.0, lon_deg=7.0, alt_m=0.0)
 ADSB_START = datetime(2026, 3, 14, 9, 0, 0, tzinfo=UTC)
 FT_M = 0.3048
+#: the turn rates of the aircraft's roll-in (2 s each; the roll-out is the reverse): 4 s to 28 deg of bank
+ROLL_IN_DPS = (0.5, 1.0)
 #: integration step of the AUV kinematics, s
 FINE_S = 0.01
 
@@ -100,7 +103,13 @@ def adsb_route() -> Route:
     return Route.model_validate(
         {
             "start": {"position_m": [-30000.0, 25000.0, 5000.0], "heading_deg": 110.0, "speed_mps": 200.0},
-            "legs": [{"duration_s": 100.0}, {"duration_s": 60.0, "turn_rate_dps": 1.5}, {"duration_s": 140.0}],
+            "legs": [
+                {"duration_s": 100.0},
+                *({"duration_s": 2.0, "turn_rate_dps": r} for r in ROLL_IN_DPS),
+                {"duration_s": 56.0, "turn_rate_dps": 1.5},
+                *({"duration_s": 2.0, "turn_rate_dps": r} for r in ROLL_IN_DPS[::-1]),
+                {"duration_s": 136.0},
+            ],
         }
     )
 
