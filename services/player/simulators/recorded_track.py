@@ -376,8 +376,12 @@ class RecordedTrack:
 @functools.lru_cache(maxsize=32)
 def load_cached(params: TrackFileParams) -> RecordedTrack:
     """:meth:`RecordedTrack.load`, cached: a parameter validator, the simulator and every Monte-Carlo run of a
-    scenario share one fitted track (it is read-only)."""
-    return RecordedTrack.load(params)
+    scenario share one fitted track (it is read-only). A missing or unreadable file raises ValueError (in a
+    parameter validator: a validation error that names the file)."""
+    try:
+        return RecordedTrack.load(params)
+    except OSError as exc:
+        raise ValueError(str(exc)) from None
 
 
 def epoch_times(track: RecordedTrack, period_s: float, first_s: float | None = None) -> F64:
