@@ -204,7 +204,7 @@ class TargetParams(SimParams):
     @model_validator(mode="after")
     def _one_plan(self) -> TargetParams:
         if sum(x is not None for x in (self.plan, self.start, self.track)) != 1:
-            raise ValueError("give exactly one of plan, start and track")
+            raise ValueError("give exactly one of plan and start (or a track instead of either)")
         if self.track is not None:
             if self.segments or self.wander is not None:
                 raise ValueError("a recorded track is the whole motion: no segments or wander with it")
