@@ -13,12 +13,15 @@ from __future__ import annotations
 
 import copy
 import math
+import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pydantic import ValidationError
 from scipy.interpolate import CubicSpline
 from test_recorded_track import enu_independent
@@ -26,11 +29,12 @@ from test_recorded_track import enu_independent
 from schemas import BeaconRange, BeaconTable, Depth, Heading, RadarPlot, SpeedLog, Truth
 from schemas.radar import BistaticScan
 from services.attitude.simulator import AttitudeSimParams
-from services.lbl_nav.simulator import LblSimParams
+from services.lbl_nav.simulation import simulate
+from services.lbl_nav.simulator import LblSimParams, recorded_path
 from services.pcl_tracker.simulator import PclSimParams
 from services.player.scenario import Scenario, parse_scenario
 from services.player.simulators import Event
-from services.player.simulators.recorded_track import GeoPoint
+from services.player.simulators.recorded_track import GeoPoint, load_cached, write_track_csv
 from services.player.timeline import scenario_events
 from services.rd_nav.simulation import ScenarioConfig
 from services.rd_nav.simulator import RdGroupParams
@@ -150,6 +154,54 @@ def test_lbl_estimator_on_the_recorded_log_stays_within_its_own_sigmas() -> None
         # probability 6e-5 per draw; the ~240 errors of a run are strongly correlated)
         assert np.max(np.abs(ex[ok]) / sx[ok]) < 4.0
         assert np.max(np.abs(ey[ok]) / sy[ok]) < 4.0
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    speeds=st.lists(st.floats(0.0, 3.0), min_size=4, max_size=4),
+    headings=st.lists(st.floats(-180.0, 540.0), min_size=4, max_size=4),
+    current=st.tuples(st.floats(-0.5, 0.5), st.floats(-0.5, 0.5)),
+    dt=st.sampled_from([0.5, 1.0, 2.0]),
+    offset=st.floats(0.0, 100.0),
+)
+def test_lbl_noise_free_log_reproduces_any_recorded_track(
+    speeds: list[float], headings: list[float], current: tuple[float, float], dt: float, offset: float
+) -> None:
+    """Property: with every error sigma 0, dead reckoning of the log on the compass heading plus the known current
+    gives back the recorded positions at every epoch (any speed profile, stops included, any heading, current, epoch
+    period and time offset)."""
+    t = np.arange(0.0, 60.0 + 1e-9, 0.5)
+    knots = np.linspace(0.0, 60.0, 4)
+    v, h = np.interp(t, knots, speeds), np.radians(np.interp(t, knots, headings))
+    east = np.concatenate([[0.0], np.cumsum(0.5 * v[1:] * np.sin(h[1:]))])
+    north = np.concatenate([[0.0], np.cumsum(0.5 * v[1:] * np.cos(h[1:]))])
+    with tempfile.TemporaryDirectory() as d:
+        path = write_track_csv(Path(d) / "t.csv", t, {"east_m": east, "north_m": north, "up_m": np.full(t.size, -20.0)})
+        zero = {f"sigma_{n}": 0.0 for n in ("delta_m", "v_m", "dc_mps", "dV_mps", "dK_deg", "dU_mps")}
+        params = LblSimParams.model_validate(
+            {
+                "preset": "s2",
+                "pre_launch_s": 10.0,
+                "dt_s": dt,
+                "known_current_ne_mps": [current[0], current[1]],
+                "track": {"path": str(path), "smoothing": "none", "time_offset_s": offset},
+                **zero,
+            }
+        )
+        spec = params.spec()
+        assert params.track is not None
+        track = load_cached(params.track)
+        run = simulate(spec, np.random.default_rng(0), path=recorded_path(track, spec))
+    assert run.stamps_ns[0] == round(offset * NS) and run.t_s[-1] + spec.epoch0_s <= offset + 60.0 + 1e-6
+    logs = [m for m in run.messages if isinstance(m, SpeedLog)]
+    heads = [m.heading_rad for m in run.messages if isinstance(m, Heading)]
+    for i in range(1, len(logs)):
+        k, lg = heads[i], logs[i]
+        de = (lg.v_forward_mps * math.sin(k) + lg.v_starboard_mps * math.cos(k) + current[1]) * dt
+        dn = (lg.v_forward_mps * math.cos(k) - lg.v_starboard_mps * math.sin(k) + current[0]) * dt
+        assert de == pytest.approx(run.x_m[i] - run.x_m[i - 1], abs=1e-9)
+        assert dn == pytest.approx(run.y_m[i] - run.y_m[i - 1], abs=1e-9)
+    np.testing.assert_allclose(run.x_m, track.states(spec.epoch0_s + run.t_s).position_m[:, 0], atol=1e-9)
 
 
 def test_lbl_track_excludes_the_synthetic_motion() -> None:
