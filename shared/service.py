@@ -206,6 +206,8 @@ class Service:
         self._stop = threading.Event()
         self._seq: dict[str, int] = {}
         self._publishers: OrderedDict[str, zenoh.Publisher] = OrderedDict()
+        #: the message type whose encoding each publisher was declared with
+        self._publisher_model: dict[str, type[Message]] = {}
         #: keys received on, declared to the session (None: the declaration failed; not retried)
         self._wire_keys: dict[str, zenoh.KeyExpr | None] = {}
         self._last_stamp: dict[str, int] = {}
@@ -321,18 +323,33 @@ class Service:
             return
         if msg.header.stamp_ns < 0:  # what Header(...) above refuses (a core building its outputs unvalidated)
             raise ValueError(f"{type(msg).__name__} on {key}: negative stamp {msg.header.stamp_ns} ns")
+        model = type(msg)
         pub = self._publishers.get(key)
         if pub is None:
-            if len(self._publishers) >= self.max_publishers:
-                _, old = self._publishers.popitem(last=False)
-                with contextlib.suppress(Exception):
-                    old.undeclare()
-            pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
-            self._publishers[key] = pub
+            pub = self._declare_publisher(key, model)
         else:
             self._publishers.move_to_end(key)
-        pub.put(codec.encode_stamped(msg, self.source, seq), encoding=codec.zenoh_encoding_of(type(msg)))
+        if self._publisher_model[key] is model:  # the publisher's own encoding: 1 µs cheaper than naming it
+            pub.put(codec.encode_stamped(msg, self.source, seq))
+        else:
+            pub.put(codec.encode_stamped(msg, self.source, seq), encoding=codec.zenoh_encoding_of(model))
         self.counters.published += 1
+
+    def _declare_publisher(self, key: str, model: type[Message]) -> zenoh.Publisher:
+        """A publisher on ``key`` whose encoding is ``model``'s (the type first published there), undeclaring the
+        least recently used one beyond :attr:`max_publishers`."""
+        assert self.session is not None
+        if len(self._publishers) >= self.max_publishers:
+            old_key, old = self._publishers.popitem(last=False)
+            del self._publisher_model[old_key]
+            with contextlib.suppress(Exception):
+                old.undeclare()
+        pub = self.session.declare_publisher(
+            key, congestion_control=zenoh.CongestionControl.BLOCK, encoding=codec.zenoh_encoding_of(model)
+        )
+        self._publishers[key] = pub
+        self._publisher_model[key] = model
+        return pub
 
     def reject(self, key: str, reason: str, detail: str = "", stamp_ns: int = 0) -> None:
         """Count a rejected input and report it on the diag key (rate-limited per reason)."""
