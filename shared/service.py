@@ -40,6 +40,7 @@ implement ``on_scenario_end`` as a plain flush.
 from __future__ import annotations
 
 import contextlib
+import gc
 import json
 import logging
 import queue
@@ -303,6 +304,9 @@ class Service:
         self.session = open_session(self.zenoh_settings)
         try:
             self._declare()
+            # what exists now (modules, schemas, the core) lives as long as the process: out of the collector's
+            # way, so that its full passes cost what the messages in flight cost, not the whole interpreter
+            gc.freeze()
             self._loop()
         finally:
             self._shutdown()
