@@ -681,10 +681,10 @@ class Service:
     def _declare_wire_key(self, key: str) -> None:
         """Declare a key this service receives samples on (the first ``max_wire_keys`` keys).
 
-        A subscription with a wildcard is delivered each sample under its key's full text, and the session resolves
-        the text against its subscribers on every sample: 3 µs of Zenoh's CPU per sample, three times a bare
-        callback's cost (``bench_service_base``). Once the key is declared, the router sends its samples under the
-        declared id, which the session resolves from its cache, as for a subscription on that very key."""
+        Zenoh charges 3-4 µs of CPU per sample on a subscription with a wildcard whose key is not declared, four
+        times what a bare callback costs; once the key is declared, a sample costs what it costs on a subscription to
+        that very key (``bench_service_base``, docs/stack.md). The declaration only names the key on this session's
+        link: what is delivered, and in which order, does not change."""
         if self.session is None or len(self._wire_keys) >= self.max_wire_keys:
             return
         declared: zenoh.KeyExpr | None = None
