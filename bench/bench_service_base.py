@@ -5,6 +5,9 @@ Real processes on one router (``fixstream router``): a publisher process puts ``
 consumer process at a time takes them, and the benchmark process counts what the consumer republishes. Consumers:
 
 * ``bare callback`` (the anchor): one Python callback per sample that counts (the transport's cost into Python);
+* ``bare callback on a wildcard``: the same subscribing with the service's key expression (``.../depth/*``): what
+  Zenoh charges for a wildcard subscription whose keys are not declared (the base declares them: see
+  :meth:`~shared.service.Service._declare_wire_key`);
 * ``bare relay``: the callback counts and puts the payload back on an output key (the transport's cost both ways);
 * ``service base``: a :class:`~shared.service.Service` whose typed subscription takes ``Depth`` and whose core does
   nothing: its handler returns the message as its output. Every message goes receive -> inbox -> unpack -> seq
@@ -14,8 +17,10 @@ consumer process at a time takes them, and the benchmark process counts what the
 
 Each consumer measures its own CPU time (``time.process_time``: every thread of the process, Zenoh's included) and
 wall time from its ``WARM``-th message to its last; CPU per message is the figure (the machine is shared, wall time
-is not). The in-process rows time the steps no service can skip (unpack, validate, encode), so the table says how
-much of the cost is the wire format and how much the base around it.
+is not). The in-process rows time the base's path in one thread (the callback's enqueue and the loop's take;
+``process`` with a put that does nothing) and the steps in it no service can skip (unpack, validate, encode), so the
+table says how much of the cost is the wire format, how much the base around it and how much the hand-over between
+Zenoh's thread and the service's.
 
 ``python -m bench service_base`` (or ``make bench``).
 """
@@ -29,7 +34,7 @@ import threading
 import time
 import timeit
 from collections.abc import Iterable
-from typing import Any, ClassVar
+from typing import Any, ClassVar, cast
 
 import msgpack
 import zenoh
@@ -87,10 +92,13 @@ class FifoEchoService(EchoService):
         self._fifo = self.session.declare_subscriber(self._subs[0].key_expr, zenoh.handlers.FifoChannel(256))
 
     def _loop(self) -> None:
-        fifo, process = self._fifo, self.process
+        fifo, process, wire_keys = self._fifo, self.process, self._wire_keys
         while not self._stop.is_set():
             s = fifo.recv()
-            process(str(s.key_expr), s.payload.to_bytes(), str(s.encoding), time.time_ns())
+            key = str(s.key_expr)
+            if key not in wire_keys:
+                self._declare_wire_key(key)
+            process(key, s.payload.to_bytes(), str(s.encoding), time.time_ns())
 
     def _shutdown(self) -> None:
         assert self.session is not None
@@ -98,6 +106,21 @@ class FifoEchoService(EchoService):
         for pub in self._publishers.values():
             pub.undeclare()
         self.session.close()
+
+
+class _NullPublisher:
+    def put(self, payload: bytes, encoding: Any = None) -> None:
+        pass
+
+
+class _NullSession:
+    """Stands in for the session in the in-process rows: its publishers put nowhere."""
+
+    def declare_publisher(self, key: str, **kwargs: Any) -> _NullPublisher:
+        return _NullPublisher()
+
+    def declare_keyexpr(self, key: str) -> None:
+        return None
 
 
 def _payload(seq: int) -> bytes:
@@ -109,6 +132,7 @@ def serve(kind: str, endpoint: str) -> None:
     """A consumer process: ``bare``, ``relay`` or ``service``; prints ``ready``, then ``cpu_s wall_s`` of the measured
     span."""
     zs = ZenohSettings(mode="client", connect=[endpoint])
+    key_expr = "fixstream/sensor/bench/depth/*" if kind == "bare_wildcard" else IN_KEY
     if kind in ("service", "service_fifo"):
         svc = (EchoService if kind == "service" else FifoEchoService)(ServiceSettings(instance="b0"), zs)
         threading.Timer(1.0, lambda: print("ready", flush=True)).start()  # run() declares within the first second
@@ -133,7 +157,7 @@ def serve(kind: str, endpoint: str) -> None:
             state["t1"] = (time.process_time(), time.perf_counter())
             done.set()
 
-    sub = session.declare_subscriber(IN_KEY, on_sample)
+    sub = session.declare_subscriber(key_expr, on_sample)
     print("ready", flush=True)
     done.wait()
     (c0, w0), (c1, w1) = state["t0"], state["t1"]
@@ -193,7 +217,7 @@ def run_consumer(kind: str, endpoint: str) -> dict[str, float]:
         publisher.wait(timeout=30)
         consumer.wait(timeout=30)
         deadline = time.monotonic() + 5
-        while kind != "bare" and got[0] < N and time.monotonic() < deadline:
+        while not kind.startswith("bare") and got[0] < N and time.monotonic() < deadline:
             time.sleep(0.05)
     finally:
         for p in (consumer, publisher):
@@ -205,23 +229,52 @@ def run_consumer(kind: str, endpoint: str) -> dict[str, float]:
     return {
         "cpu_us_per_msg": cpu_s / span * 1e6,
         "msg_per_s": span / wall_s,
-        "outputs_received": got[0] if kind != "bare" else 0,
+        "outputs_received": got[0] if not kind.startswith("bare") else 0,
     }
 
 
 # ----- in-process: where the microseconds go -------------------------------------------------------------------------
-def in_process() -> dict[str, float]:
-    """µs per call of the base's irreducible steps on a Depth payload, in this process (best of 5 repeats)."""
+def in_process(endpoint: str) -> dict[str, float]:
+    """µs of CPU per message of the base's path in this process (best of 5 repeats): the callback's enqueue and the
+    loop's take of real Zenoh samples, ``process`` of the no-op service with a put that does nothing, and the steps
+    in it that no service can skip."""
     payload = _payload(7)
     obj = codec.unpack(payload)
     msg = codec.validate(Depth, obj)
     reps = 20_000
 
-    def best(fn: Any) -> float:
-        return min(timeit.repeat(fn, number=reps, repeat=5)) / reps * 1e6
+    def best(fn: Any, number: int = reps) -> float:
+        return min(timeit.repeat(fn, number=number, repeat=5, timer=time.process_time)) / number * 1e6
 
     seq = iter(range(10**9))
+    svc = EchoService(ServiceSettings(instance="b0"))
+    svc._subs = svc.subscriptions()
+    svc.session = cast(zenoh.Session, _NullSession())
+    payloads = [_payload(i) for i in range(6 * reps)]
+    it = iter(payloads)
+
+    # real samples: one put through the router, delivered back to this process
+    got: list[zenoh.Sample] = []
+    session = open_session(ZenohSettings(mode="client", connect=[endpoint]))
+    sub = session.declare_subscriber(IN_KEY, got.append)
+    session.put(IN_KEY, payload, encoding=zenoh.Encoding(ENCODING))
+    deadline = time.monotonic() + 5
+    while not got and time.monotonic() < deadline:
+        time.sleep(0.01)
+    sub.undeclare()
+    session.close()
+    sample = got[0]
+    enqueue, take = svc._enqueue, svc._queue.get
+
+    def handover() -> None:
+        for _ in range(1000):
+            enqueue(sample)
+        for _ in range(1000):
+            take()
+
     return {
+        "enqueue_and_take": best(handover, 20) / 1000,
+        "process": best(lambda: svc.process(IN_KEY, next(it), ENCODING, 0)),
         "unpack": best(lambda: codec.unpack(payload)),
         "validate": best(lambda: codec.validate(Depth, obj)),
         "encode_stamped": best(lambda: codec.encode_stamped(msg, "bench_echo/b0", next(seq))),
@@ -232,11 +285,12 @@ def main() -> None:
     rows: list[list[Any]] = []
     figures: dict[str, Any] = {"n": N, "warm": WARM}
     with router() as endpoint:
-        results = {k: run_consumer(k, endpoint) for k in ("bare", "relay", "service", "service_fifo")}
-        steps = in_process()
+        results = {k: run_consumer(k, endpoint) for k in ("bare", "bare_wildcard", "relay", "service", "service_fifo")}
+        steps = in_process(endpoint)
     anchor = results["bare"]["cpu_us_per_msg"]
     labels = {
         "bare": "bare Zenoh callback that counts (anchor)",
+        "bare_wildcard": "the same subscribing with a wildcard (keys not declared)",
         "relay": "bare callback that counts and puts the payload",
         "service": "service base, no-op core (typed subscription, one output)",
         "service_fifo": "the same through Zenoh's FifoChannel (variant, not shipped)",

@@ -8,6 +8,7 @@ code (for diagnostics counters) and a human-readable detail.
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import msgpack
@@ -62,12 +63,24 @@ def zenoh_encoding_of(model: type[Message]) -> zenoh.Encoding:
     return enc
 
 
+class _Packers(threading.local):
+    """One ``msgpack.Packer`` per thread: ``Packer(use_bin_type=True).pack`` gives the bytes of
+    ``msgpack.packb(obj, use_bin_type=True)`` without building a packer and parsing its options on every call (hot
+    publish paths); a packer keeps a buffer, so no two threads share one."""
+
+    def __init__(self) -> None:
+        self.pack = msgpack.Packer(use_bin_type=True).pack
+
+
+_PACKERS = _Packers()
+
+
 def encode(msg: Message) -> bytes:
     """msgpack bytes of ``msg`` (plain dicts, lists, str, int, float, bool, None).
 
     The model's serializer is called directly: the same dict as ``msg.model_dump(mode="python")`` without the
     wrapper's argument handling (hot publish paths)."""
-    return msgpack.packb(msg.__pydantic_serializer__.to_python(msg), use_bin_type=True)
+    return _PACKERS.pack(msg.__pydantic_serializer__.to_python(msg))
 
 
 def encode_stamped(msg: Message, source: str, seq: int) -> bytes:
@@ -78,7 +91,7 @@ def encode_stamped(msg: Message, source: str, seq: int) -> bytes:
     header = data["header"]
     header["source"] = source
     header["seq"] = seq
-    return msgpack.packb(data, use_bin_type=True)
+    return _PACKERS.pack(data)
 
 
 _MODEL_CACHE: dict[str, type[Message]] = {}

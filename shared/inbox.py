@@ -19,6 +19,7 @@ from typing import Any
 
 class Inbox:
     """The inbound queue between Zenoh's delivery threads and the processing thread, bounded in items and bytes.
+    Any number of threads may put; one takes.
 
     ``put`` holds the delivery thread while the queue is full, for at most ``block_s``; then it drops and counts,
     and keeps dropping at once (no further hold) until the queue has drained to half its bounds."""
@@ -26,13 +27,21 @@ class Inbox:
     def __init__(self, max_items: int, max_bytes: int, block_s: float) -> None:
         self.max_items, self.max_bytes, self.block_s = max_items, max_bytes, block_s
         self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
-        self._lock = threading.Lock()
-        self.bytes = 0
+        self._lock = threading.Lock()  # between the delivery threads (there may be several)
+        #: bytes ever admitted (delivery threads, under the lock) and taken (the one processing thread, no lock): the
+        #: delivery side may read a stale ``_taken``, which only overstates what is queued
+        self._admitted = 0
+        self._taken = 0
         self.dropped = 0
         self._shedding = False
 
+    @property
+    def bytes(self) -> int:
+        """Payload bytes queued."""
+        return self._admitted - self._taken
+
     def _admit(self, size: int) -> bool:
-        n, b = self._q.qsize(), self.bytes
+        n, b = self._q.qsize(), self._admitted - self._taken
         if self._shedding:
             if n > self.max_items // 2 or b > self.max_bytes // 2:
                 return False
@@ -44,7 +53,7 @@ class Inbox:
         while True:
             with self._lock:
                 if self._admit(size):
-                    self.bytes += size
+                    self._admitted += size
                     self._q.put((item, size))
                     return True
                 shedding = self._shedding
@@ -63,11 +72,10 @@ class Inbox:
         self._q.put((item, 0))
 
     def get(self, timeout: float | None = None) -> Any:
-        """The next item (``queue.Empty`` after ``timeout`` s; None: do not wait)."""
+        """The next item (``queue.Empty`` after ``timeout`` s; None: do not wait). One thread only takes from an
+        inbox (the process's own): its count of bytes taken needs no lock."""
         item, size = self._q.get(timeout=timeout) if timeout is not None else self._q.get_nowait()
-        if size:
-            with self._lock:
-                self.bytes -= size
+        self._taken += size
         return item
 
     def qsize(self) -> int:

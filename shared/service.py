@@ -40,6 +40,7 @@ implement ``on_scenario_end`` as a plain flush.
 from __future__ import annotations
 
 import contextlib
+import gc
 import json
 import logging
 import queue
@@ -51,7 +52,7 @@ from collections import Counter, OrderedDict
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from types import FrameType
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal, NamedTuple
 
 import zenoh
 
@@ -68,9 +69,9 @@ from .settings import ServiceSettings, ZenohSettings
 log = logging.getLogger("fixstream.service")
 
 
-@dataclass(frozen=True)
-class Output:
-    """A message to publish on a key."""
+class Output(NamedTuple):
+    """A message to publish on a key (a named tuple: every handler builds one per output, and a tuple is built in
+    half the time of a frozen dataclass)."""
 
     key: str
     msg: Message
@@ -189,6 +190,8 @@ class Service:
     diag_burst: ClassVar[int] = 2000
     #: declared publishers kept (least recently used beyond this are undeclared; a key's seq is kept regardless)
     max_publishers: ClassVar[int] = 4096
+    #: keys received on that are declared to the session (:meth:`_declare_wire_key`), at most
+    max_wire_keys: ClassVar[int] = 4096
 
     def __init__(self, settings: ServiceSettings, zenoh_settings: ZenohSettings | None = None) -> None:
         self.settings = settings
@@ -204,12 +207,17 @@ class Service:
         self._stop = threading.Event()
         self._seq: dict[str, int] = {}
         self._publishers: OrderedDict[str, zenoh.Publisher] = OrderedDict()
+        #: the message type whose encoding each publisher was declared with
+        self._publisher_model: dict[str, type[Message]] = {}
+        #: keys received on, declared to the session (None: the declaration failed; not retried)
+        self._wire_keys: dict[str, zenoh.KeyExpr | None] = {}
         self._last_stamp: dict[str, int] = {}
         self._limiter = _DiagLimiter(self.diag_rate_hz, self.diag_burst)
         self.diag_suppressed = 0
         self._declared: list[Any] = []
         self._subs: list[Subscription] = []
-        self._match_cache: dict[str, Subscription | None] = {}
+        #: per key seen: its subscription (the first that matches, or None) and whether it is a scenario marker key
+        self._routes: dict[str, tuple[Subscription | None, bool]] = {}
         #: what an offline run (no session) published, in order
         self.outbox: list[Output] = []
         self.started_at = time.time()
@@ -296,6 +304,9 @@ class Service:
         self.session = open_session(self.zenoh_settings)
         try:
             self._declare()
+            # what exists now (modules, schemas, the core) lives as long as the process: out of the collector's
+            # way, so that its full passes cost what the messages in flight cost, not the whole interpreter
+            gc.freeze()
             self._loop()
         finally:
             self._shutdown()
@@ -316,18 +327,33 @@ class Service:
             return
         if msg.header.stamp_ns < 0:  # what Header(...) above refuses (a core building its outputs unvalidated)
             raise ValueError(f"{type(msg).__name__} on {key}: negative stamp {msg.header.stamp_ns} ns")
+        model = type(msg)
         pub = self._publishers.get(key)
         if pub is None:
-            if len(self._publishers) >= self.max_publishers:
-                _, old = self._publishers.popitem(last=False)
-                with contextlib.suppress(Exception):
-                    old.undeclare()
-            pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
-            self._publishers[key] = pub
+            pub = self._declare_publisher(key, model)
         else:
             self._publishers.move_to_end(key)
-        pub.put(codec.encode_stamped(msg, self.source, seq), encoding=codec.zenoh_encoding_of(type(msg)))
+        if self._publisher_model[key] is model:  # the publisher's own encoding: 1 µs cheaper than naming it
+            pub.put(codec.encode_stamped(msg, self.source, seq))
+        else:
+            pub.put(codec.encode_stamped(msg, self.source, seq), encoding=codec.zenoh_encoding_of(model))
         self.counters.published += 1
+
+    def _declare_publisher(self, key: str, model: type[Message]) -> zenoh.Publisher:
+        """A publisher on ``key`` whose encoding is ``model``'s (the type first published there), undeclaring the
+        least recently used one beyond :attr:`max_publishers`."""
+        assert self.session is not None
+        if len(self._publishers) >= self.max_publishers:
+            old_key, old = self._publishers.popitem(last=False)
+            del self._publisher_model[old_key]
+            with contextlib.suppress(Exception):
+                old.undeclare()
+        pub = self.session.declare_publisher(
+            key, congestion_control=zenoh.CongestionControl.BLOCK, encoding=codec.zenoh_encoding_of(model)
+        )
+        self._publishers[key] = pub
+        self._publisher_model[key] = model
+        return pub
 
     def reject(self, key: str, reason: str, detail: str = "", stamp_ns: int = 0) -> None:
         """Count a rejected input and report it on the diag key (rate-limited per reason)."""
@@ -445,7 +471,7 @@ class Service:
         if len(payload) > self._max_payload:
             self.reject(key, "payload_too_large", f"{len(payload)} bytes > max_payload_bytes {self._max_payload}")
             return
-        sub = self._match(key)
+        sub, scenario = self._routes.get(key) or self._route(key)
         try:  # once: the header for the accounting, the object for the validation
             obj, unpack_error = codec.unpack(payload), None
         except codec.DecodeError as exc:
@@ -453,28 +479,28 @@ class Service:
         counted = False
         if sub is not None:
             try:
-                counted = self._account(key, None if unpack_error else codec.header_of(obj))
+                counted = self._account(key, scenario, None if unpack_error else codec.header_of(obj))
             except InputRejected as exc:
                 self.reject(key, exc.reason, exc.detail)
                 return
-        outputs = self._dispatch(key, payload, encoding, sub, obj, unpack_error)
+        outputs = self._dispatch(key, payload, encoding, sub, scenario, obj, unpack_error)
         if outputs is not None:
             self.counters.accepted += 1
             self._publish_all(outputs)
         if counted and self._pending_end is not None:
             self._end_scenario(force=False)
 
-    def _account(self, key: str, header: tuple[str, int, int] | None) -> bool:
+    def _account(self, key: str, scenario: bool, header: tuple[str, int, int] | None) -> bool:
         """The input stamp bound, seq checks of the sample's publisher (``header``: its source, seq and stamp);
-        True if the sample counts towards its player's end marker. Raises InputRejected for a stamp beyond the input
-        bound."""
+        True if the sample counts towards its player's end marker (``scenario``: ``key`` is a marker key). Raises
+        InputRejected for a stamp beyond the input bound."""
         if header is None:
             return False  # does not unpack: the decode reports it; it counts for nobody
         source, seq, stamp = header
         if stamp > MAX_INPUT_STAMP_NS:
             # valid as a message, but no core may take it: outputs derived from it could not be stamped
             raise InputRejected("stamp_out_of_range", f"stamp {stamp} ns > {MAX_INPUT_STAMP_NS} ns (the input bound)")
-        if _is_scenario_key(key):
+        if scenario:
             return False  # markers: a missing one shows as a run that ends by end_wait_s
         check = self.seq.check(key, source, seq)
         if check is IN_ORDER:
@@ -505,6 +531,7 @@ class Service:
         payload: bytes,
         encoding: str,
         sub: Subscription | None,
+        scenario: bool,
         obj: Any,
         unpack_error: codec.DecodeError | None,
     ) -> Iterable[Output] | None:
@@ -528,7 +555,7 @@ class Service:
                 if sub is None or sub.salvage is None:
                     raise
                 msg = sub.salvage(model, obj, exc)
-            if isinstance(msg, ScenarioMarker) and _is_scenario_key(key):
+            if scenario and isinstance(msg, ScenarioMarker):
                 return self._on_marker(msg)
             if sub is None or sub.handler is None:
                 raise InputRejected("no_handler", f"nothing handles {key}")
@@ -629,28 +656,43 @@ class Service:
 
     def _match(self, key: str) -> Subscription | None:
         """The first subscription whose key expression intersects ``key`` (memoised per key)."""
-        if key in self._match_cache:
-            return self._match_cache[key]
+        return (self._routes.get(key) or self._route(key))[0]
+
+    def _route(self, key: str) -> tuple[Subscription | None, bool]:
+        """:meth:`_match` and :func:`_is_scenario_key` of a key not seen yet (remembered for 65,536 keys)."""
         ke = zenoh.KeyExpr(key)
         found = next((s for s in self._subs if zenoh.KeyExpr(s.key_expr).intersects(ke)), None)
-        if len(self._match_cache) < 65536:
-            self._match_cache[key] = found
-        return found
+        route = (found, _is_scenario_key(key))
+        if len(self._routes) < 65536:
+            self._routes[key] = route
+        return route
 
     def _enqueue(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        if key not in self._wire_keys:
+            self._declare_wire_key(key)
         payload = sample.payload
         size = len(payload)
         if size > self._max_payload:  # refused unread: only its size travels to the processing thread
-            item: tuple[str, bytes, str, int] = (
-                str(sample.key_expr),
-                _Oversized(size),
-                str(sample.encoding),
-                time.time_ns(),
-            )
-            self._queue.put(item, 0, self._stop)
+            self._queue.put((key, _Oversized(size), str(sample.encoding), time.time_ns()), 0, self._stop)
             return
-        item = (str(sample.key_expr), payload.to_bytes(), str(sample.encoding), time.time_ns())
-        self._queue.put(item, size, self._stop)
+        self._queue.put((key, payload.to_bytes(), str(sample.encoding), time.time_ns()), size, self._stop)
+
+    def _declare_wire_key(self, key: str) -> None:
+        """Declare a key this service receives samples on (the first ``max_wire_keys`` keys).
+
+        Zenoh charges 3-4 µs of CPU per sample on a subscription with a wildcard whose key is not declared, four
+        times what a bare callback costs; once the key is declared, a sample costs what it costs on a subscription to
+        that very key (``bench_service_base``, docs/stack.md). The declaration only names the key on this session's
+        link: what is delivered, and in which order, does not change."""
+        if self.session is None or len(self._wire_keys) >= self.max_wire_keys:
+            return
+        declared: zenoh.KeyExpr | None = None
+        try:
+            declared = self.session.declare_keyexpr(key)
+        except Exception:  # the declaration only saves CPU: without it the samples still arrive
+            log.debug("%s: could not declare key %s", self.source, key, exc_info=True)
+        self._wire_keys[key] = declared
 
     def _declare(self) -> None:
         assert self.session is not None
