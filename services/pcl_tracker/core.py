@@ -20,9 +20,10 @@ from numpy.typing import NDArray
 from pydantic import BaseModel
 
 from schemas.base import Header
-from schemas.pcl_tracker import PclScanReport, PclTrackReport
+from schemas.pcl_tracker import BISTATIC, PclScanReport, PclTrackReport
 from schemas.radar import BistaticConfigUpdate, BistaticScan
 from shared.errors import InputRejected
+from shared.estimates import CV_STATE, gaussian
 from shared.filters import kalman
 from shared.filters.covariance import CholeskyStats, symmetrize
 from shared.filters.unscented import TransformResult
@@ -745,6 +746,8 @@ class PclTracker:
         if not (np.isfinite(X).all() and np.isfinite(P).all() and np.isfinite(Z).all() and np.isfinite(PZ).all()):
             raise RuntimeError(f"non-finite track state in scan {sid}")
         X_l, P_l, Z_l, PZ_l = X.tolist(), P.tolist(), Z.tolist(), PZ.tolist()
+        frame = self.config.geometry.frame_id
+        bistatic_frame = f"bistatic/{self.receiver_id}/{self.illuminator_id}"
         out = []
         t_s = t_ns * 1e-9
         assoc_of, flags_of, in_gate_of = work.assoc.get, work.track_flags.get, work.in_gate.get
@@ -770,10 +773,8 @@ class PclTracker:
                         "status": "DROPPED" if drop is not None else tr.status,
                         "scan_id": sid,
                         "t_s": t_s,
-                        "state_enu": X_l[k],
-                        "cov_enu": P_l[k],
-                        "bistatic": Z_l[k],
-                        "bistatic_cov": PZ_l[k],
+                        "estimate": gaussian(frame, CV_STATE, X_l[k], P_l[k], validate=False),
+                        "bistatic": gaussian(bistatic_frame, BISTATIC, Z_l[k], PZ_l[k], validate=False),
                         "associated_plot_id": None if assoc is None else assoc[0],
                         "nis": nis,
                         "n_plots_in_gate": in_gate_of(tid, 0),
