@@ -155,17 +155,6 @@ class Estimate:
 NOMINAL_VERTICAL_VAR_M2 = 1.0
 
 
-def cov2_enu(cov2: list[list[float]], north_first: bool) -> F64:
-    """A horizontal 2x2 covariance as 3x3 ENU (vertical nominal); ``north_first``: rows are (north, east)."""
-    c = np.asarray(cov2, dtype=np.float64)
-    if north_first:
-        c = c[::-1, ::-1]
-    out = np.zeros((3, 3))
-    out[:2, :2] = c
-    out[2, 2] = NOMINAL_VERTICAL_VAR_M2
-    return out
-
-
 def gaussian_position(
     est: GaussianEstimate, ctx: FrameContext, vertical: tuple[float, float] | None = None
 ) -> tuple[F64, F64, bool] | None:
@@ -293,7 +282,6 @@ __all__ = [
     "NOMINAL_VERTICAL_VAR_M2",
     "Estimate",
     "FrameContext",
-    "cov2_enu",
     "estimates_of",
     "gaussian_position",
     "hypothesis_estimates",
