@@ -20,8 +20,8 @@ import time
 import numpy as np
 
 from schemas import Header, RadarPlot
-from services.attitude import AttitudeConfig, AttitudeCore
-from services.attitude.config import CA_MODELS
+from services.attitude.config import CA_MODELS, AttitudeConfig
+from services.attitude.core import AttitudeCore
 from services.attitude.simulation import NS, fly, measure, paper_plan, scan_times
 from shared.service import InputRejected
 

@@ -27,9 +27,8 @@ from typing import Any
 import numpy as np
 
 from schemas import RadarPlot, Truth
-from services.attitude import AttitudeConfig
 from services.attitude.angles import AngleConventions, angle_block
-from services.attitude.config import MANOEUVRE_MODELS
+from services.attitude.config import MANOEUVRE_MODELS, AttitudeConfig
 from services.attitude.filter import update
 from services.attitude.geometry import convert_plot
 from services.attitude.imm import augment, model_matrices

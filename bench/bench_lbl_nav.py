@@ -29,9 +29,9 @@ from services.lbl_nav import initiation
 from services.lbl_nav.alternatives import TwoFilterScheme
 from services.lbl_nav.config import LblNavConfig
 from services.lbl_nav.core import LblNavCore
-from services.lbl_nav.experiment import feed
 from services.lbl_nav.filter import BufferedEpoch, HypothesisBank, HypothesisFilter
 from services.lbl_nav.models import DrInterval, MotionModel, RangeRow
+from services.lbl_nav.offline import feed
 from services.lbl_nav.simulation import s1_spec, simulate
 
 B1, B2 = (0.0, 0.0, 100.0), (0.0, 1500.0, 100.0)

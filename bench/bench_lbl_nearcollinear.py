@@ -31,8 +31,8 @@ from schemas.lbl_nav import LblEvent, LblFix
 from services.lbl_nav.bounds import NoiseModel, exact_log_ratio_at
 from services.lbl_nav.config import LblNavConfig
 from services.lbl_nav.core import LblNavCore
-from services.lbl_nav.experiment import feed
 from services.lbl_nav.metrics import binomial_upper95 as upper95
+from services.lbl_nav.offline import feed
 from services.lbl_nav.simulation import SimRun, simulate
 from services.lbl_nav.simulator import sim_params
 from services.player.scenario import load_scenario

@@ -19,7 +19,7 @@ from services.coordinator.selection import select
 from services.rd_nav.config import RdNavConfig
 from services.rd_nav.ekf import EkfShadow
 from services.rd_nav.geometry import leader_follower_ranges, measurement_cov, noise_free_tdoa
-from services.rd_nav.inprocess import run
+from services.rd_nav.offline import run
 from services.rd_nav.pf import ParticleFilter
 from services.rd_nav.simulation import ref
 

@@ -22,7 +22,8 @@ clock (``CLOCK_MONOTONIC``, system-wide), the arrival of every sensor message an
   arrived after them) are left out; "outputs timed" counts the rest. Both arrivals are seen by the same observer
   through the same router, so the figure is router -> service -> router, queueing included.
 
-Where it stops: each service takes ~90 MB (PSS, measured on the N = 1 run) and ~1 s of CPU to start. An N whose
+Where it stops: each service takes ~35–45 MB (PSS, measured on the N = 1 run; ~108 MB before service processes
+stopped importing every estimator through the plugin registry) and ~1 s of CPU to start. An N whose
 estimated memory (N x PSS x 1.3) exceeds ``MEM_FRACTION`` of MemAvailable is not started; the row says why.
 """
 

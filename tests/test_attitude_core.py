@@ -10,7 +10,8 @@ import pytest
 
 from schemas import Header, RadarPlot, RadarSite, TrackEnd
 from schemas.attitude import AttitudeEstimate
-from services.attitude import AttitudeConfig, AttitudeCore
+from services.attitude.config import AttitudeConfig
+from services.attitude.core import AttitudeCore
 from services.attitude.filter import is_positive_definite, predict
 from services.attitude.initiation import quadratic_state
 from services.attitude.simulation import NS, FlightPlan, fly, measure, paper_plan, scan_times, true_spherical

@@ -16,8 +16,9 @@ from hypothesis import strategies as st
 from scipy.linalg import expm
 
 from schemas import Header, RadarPlot
-from services.attitude import AttitudeConfig, AttitudeCore, imm
-from services.attitude.config import MotionModel
+from services.attitude import imm
+from services.attitude.config import AttitudeConfig, MotionModel
+from services.attitude.core import AttitudeCore
 from services.attitude.models import (
     OMEGA,
     block_diagonal,

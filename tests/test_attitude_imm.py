@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 
 from schemas import Header, RadarPlot
-from services.attitude import AttitudeConfig, AttitudeCore, imm
-from services.attitude.config import CA_MODELS, MANOEUVRE_MODELS, MotionModel
+from services.attitude import imm
+from services.attitude.config import CA_MODELS, MANOEUVRE_MODELS, AttitudeConfig, MotionModel
+from services.attitude.core import AttitudeCore
 from services.attitude.filter import predict, update
 from services.attitude.geometry import convert_plot
 from services.attitude.initiation import fsf_estimate

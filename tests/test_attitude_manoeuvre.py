@@ -14,9 +14,9 @@ import pytest
 
 from schemas import Header, RadarPlot, Truth
 from schemas.attitude import AttitudeEstimate
-from services.attitude import AttitudeConfig, AttitudeCore
 from services.attitude.angles import AngleConventions, angle_block
-from services.attitude.config import MeasurementSigmas
+from services.attitude.config import AttitudeConfig, MeasurementSigmas
+from services.attitude.core import AttitudeCore
 from services.attitude.metrics import RunRecorder, aggregate, run_record
 from services.attitude.simulation import (
     G_TRUTH_MPS2,

@@ -16,9 +16,9 @@ import pytest
 from conftest import REPO
 
 from services.attitude.config import CA_MODELS
-from services.attitude.evaluation import evaluation_config, run_monte_carlo
 from services.attitude.flights import FILES
 from services.attitude.metrics import phase_table
+from services.attitude.offline import evaluation_config, run_monte_carlo
 from services.player.scenario import load_scenario
 from tools.montecarlo import run_montecarlo
 

@@ -26,7 +26,7 @@ from typing import Any
 import pytest
 
 from services.attitude.config import MeasurementSigmas
-from services.attitude.evaluation import evaluation_config, monte_carlo_size, run_monte_carlo
+from services.attitude.offline import evaluation_config, monte_carlo_size, run_monte_carlo
 from services.attitude.simulation import paper_plan
 
 RADARS = ("9S15", "Vostok3D", "19Zh6")

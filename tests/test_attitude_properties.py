@@ -16,7 +16,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from schemas import Header, RadarPlot, RadarSite, TrackEnd
-from services.attitude import AttitudeConfig, AttitudeCore
+from services.attitude.config import AttitudeConfig
+from services.attitude.core import AttitudeCore
 from shared.service import InputRejected
 
 NS = 1_000_000_000

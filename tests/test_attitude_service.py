@@ -18,8 +18,9 @@ from stack_support import counters_add_up, framed, offline_on_bytes, on_key, raw
 
 from schemas import Diagnostic, Message, RadarPlot, ScenarioMarker, Truth
 from schemas.attitude import AttitudeEstimate
-from services.attitude import AttitudeConfig, AttitudeCore
 from services.attitude import service as attitude_service
+from services.attitude.config import AttitudeConfig
+from services.attitude.core import AttitudeCore
 from services.attitude.mc import radar_frame_truth
 from services.attitude.metrics import truth_angles
 from services.attitude.service import AttitudeService, AttitudeSettings, input_key, output_key

@@ -15,7 +15,6 @@ from filterpy.kalman import KalmanFilter
 
 from services.attitude.angles import AngleConventions, angle_block, angle_jacobian, angles_of_states, attitude_angles
 from services.attitude.config import AttitudeConfig, MeasurementSigmas
-from services.attitude.evaluation import monte_carlo_size
 from services.attitude.filter import is_positive_definite, predict, update
 from services.attitude.geometry import (
     body_axes,
@@ -27,6 +26,7 @@ from services.attitude.geometry import (
 )
 from services.attitude.initiation import fsf_design, fsf_estimate, quadratic_state
 from services.attitude.models import H_POS, jerk_input, process_noise, transition, transition_axis
+from services.attitude.offline import monte_carlo_size
 from services.attitude.simulation import coordinated_roll, fly, paper_plan
 
 D2R = math.pi / 180.0

@@ -17,7 +17,7 @@ from functools import cache
 import numpy as np
 
 from services.lbl_nav.bounds import EpochData, NoiseModel, epoch_data, linearised_filter, position_bound
-from services.lbl_nav.experiment import RunTrace, run_core, scenario_config
+from services.lbl_nav.offline import RunTrace, run_core, scenario_config
 from services.lbl_nav.simulation import SimRun, s1_spec, s2_spec, simulate
 
 BEACONS = {"B1": (0.0, 0.0, 100.0), "B2": (0.0, 1500.0, 100.0)}

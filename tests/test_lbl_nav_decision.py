@@ -37,7 +37,7 @@ from services.lbl_nav.config import LblNavConfig
 from services.lbl_nav.core import LblNavCore
 from services.lbl_nav.decision import ExactDecision, evidence_epoch
 from services.lbl_nav.evidence import EvidenceEpoch, Priors, RangeObs, Record, Start, fit
-from services.lbl_nav.experiment import run_core, scenario_config
+from services.lbl_nav.offline import run_core, scenario_config
 from services.lbl_nav.simulation import SimBeacon, SimRun, s2_spec, s3_spec, simulate
 from services.lbl_nav.simulator import sim_params
 from services.player.scenario import load_scenario

@@ -18,9 +18,9 @@ from stack_support import delivered, framed
 
 from schemas import BeaconRange, BeaconTable, Current, Depth, Heading, SpeedLog, Truth
 from services.lbl_nav import mc
-from services.lbl_nav.experiment import run_core as experiment_run_core
-from services.lbl_nav.experiment import scenario_config
 from services.lbl_nav.metrics import run_metrics as trace_metrics
+from services.lbl_nav.offline import run_core as experiment_run_core
+from services.lbl_nav.offline import scenario_config
 from services.lbl_nav.service import LblNavService, LblNavSettings, event_key, fix_key
 from services.lbl_nav.simulation import simulate
 from services.lbl_nav.simulator import sensor_keys, sim_params
@@ -180,7 +180,7 @@ def test_run_core_is_the_experiment_and_the_metrics_of_what_the_service_publishe
     assert from_service == {k: v for k, v in result.items() if k not in mc.OFFLINE_ONLY}
     assert {o.key for o in published} == {fix_key("lbl1"), event_key("lbl1")}
 
-    # and the core's own evaluation (services.lbl_nav.experiment) on the same simulated run
+    # and the core's own evaluation (services.lbl_nav.offline) on the same simulated run
     rng = np.random.Generator(np.random.PCG64(child_seed(run_seed(7), "lbl1")))
     run = simulate(sim_params(sc).spec(), rng, 7)
     for variant, cfg in (("with", scenario_config("S2")), ("without", scenario_config("S2", use_buffered=False))):

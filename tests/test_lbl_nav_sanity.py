@@ -12,8 +12,8 @@ from schemas.lbl_nav import LblEvent, LblFix
 from services.lbl_nav import initiation
 from services.lbl_nav.config import LblNavConfig
 from services.lbl_nav.core import LblNavCore
-from services.lbl_nav.experiment import feed, run_core
 from services.lbl_nav.models import RangeRow
+from services.lbl_nav.offline import feed, run_core
 from services.lbl_nav.simulation import s1_spec, s3_spec, simulate
 from shared.service import InputRejected
 

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from services.lbl_nav.bounds import NoiseModel, log_ratio_true_over_mirror, position_bound
-from services.lbl_nav.experiment import RunTrace, run_set, scenario_config
 from services.lbl_nav.metrics import aggregate
+from services.lbl_nav.offline import RunTrace, run_set, scenario_config
 from services.lbl_nav.simulation import s1_spec, s2_spec, s3_spec, simulate, with_end
 
 T300 = list(range(0, 301))

@@ -20,7 +20,7 @@ from services.coordinator.core import CoordinatorCore
 from services.coordinator.selection import gdop_sets
 from services.rd_nav.config import RdNavConfig
 from services.rd_nav.geometry import gdop
-from services.rd_nav.inprocess import run
+from services.rd_nav.offline import run
 from services.rd_nav.schedule import arrival_starts, min_cycle_period, min_reply_delays, overlapping
 from services.rd_nav.simulation import fleet
 from shared.service import InputRejected

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from services.rd_nav.config import RdNavConfig
-from services.rd_nav.inprocess import RunLog, monte_carlo
+from services.rd_nav.offline import RunLog, monte_carlo
 from services.rd_nav.simulation import low, ref
 
 MC = {"propagated_fix_period_s": 0.0, "emit_propagated_after_cycle": False}

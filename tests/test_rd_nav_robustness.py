@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from services.rd_nav.config import RdNavConfig
-from services.rd_nav.inprocess import RunLog, monte_carlo, run
+from services.rd_nav.offline import RunLog, monte_carlo, run
 from services.rd_nav.simulation import ref
 
 MC = {"propagated_fix_period_s": 0.0, "emit_propagated_after_cycle": False}

@@ -32,7 +32,7 @@ from services.coordinator.selection import select
 from services.player.scenario import load_scenario
 from services.rd_nav.config import RdNavConfig
 from services.rd_nav.geometry import crlb, jacobian_d, measurement_cov, motion_comp_cov
-from services.rd_nav.inprocess import run
+from services.rd_nav.offline import run
 from services.rd_nav.simulation import REF_BEACONS, VehicleSpec, ref
 from tools.montecarlo import run_montecarlo
 

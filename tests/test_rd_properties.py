@@ -28,7 +28,7 @@ from services.coordinator.config import CoordinatorConfig
 from services.coordinator.core import CoordinatorCore
 from services.rd_nav.config import RdNavConfig
 from services.rd_nav.core import RdNavCore
-from services.rd_nav.inprocess import node_table_message
+from services.rd_nav.offline import node_table_message
 from services.rd_nav.simulation import REF_NODES, Simulation, ref, ref_assignment
 from shared.service import InputRejected
 

@@ -3,8 +3,8 @@
 Their services and player plugins are being written; until then a recording of each is made in-process
 (:mod:`tools.report.offline`: the digest's S2 LBL run and the group's fleet run with the coordinator core in
 the loop, written with the recorder's writer, publishers named as the services will be). The sections' headline
-numbers are checked against the cores' own evaluation code on the same runs (``services.lbl_nav.experiment``,
-``services.rd_nav.inprocess``), which shares nothing with the report; the page renders in headless Chromium.
+numbers are checked against the cores' own evaluation code on the same runs (``services.lbl_nav.offline``,
+``services.rd_nav.offline``), which shares nothing with the report; the page renders in headless Chromium.
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ import pytest
 from test_report import assert_plausible_screenshot, render
 
 from services.lbl_nav import simulation as lbl_sim
-from services.lbl_nav.experiment import run_core as lbl_run_core
-from services.lbl_nav.experiment import scenario_config
+from services.lbl_nav.offline import run_core as lbl_run_core
+from services.lbl_nav.offline import scenario_config
 from tools.report import make_report
 from tools.report.offline import lbl_items, marker, rd_items, write_recording
 
@@ -67,7 +67,7 @@ def test_rd_section_matches_the_in_process_run(report: dict) -> None:  # type: i
     from services.coordinator.config import CoordinatorConfig
     from services.coordinator.core import CoordinatorCore
     from services.rd_nav import simulation
-    from services.rd_nav.inprocess import run
+    from services.rd_nav.offline import run
 
     head = section(report["metrics"], "rd_nav")
     log = run(simulation.fleet(duration_s=RD_SECONDS), 2, coordinator=CoordinatorCore(CoordinatorConfig()))

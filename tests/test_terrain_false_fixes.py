@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from services.terrain_nav.config import TerrainNavConfig
-from services.terrain_nav.harness import run_flight
 from services.terrain_nav.maps import ReferenceMap
+from services.terrain_nav.offline import run_flight
 from services.terrain_nav.posterior import exact_posterior
 from services.terrain_nav.resampler import CellMeasurement
 from services.terrain_nav.simulation import FlightScenario, make_world, simulate_flight

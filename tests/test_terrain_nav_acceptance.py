@@ -25,8 +25,8 @@ import pytest
 from schemas.terrain_nav import TerrainFix, TerrainVerdict
 from services.terrain_nav.config import TerrainNavConfig
 from services.terrain_nav.core import TerrainNavigator
-from services.terrain_nav.harness import run_flight
 from services.terrain_nav.metrics import aggregate, fix_errors_cells, score_run
+from services.terrain_nav.offline import run_flight
 from services.terrain_nav.resampler import CellMeasurement
 from services.terrain_nav.simulation import (
     FailureSpec,

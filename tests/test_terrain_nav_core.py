@@ -16,8 +16,8 @@ from services.terrain_nav.base_algorithm import BaseRecurrentSearch
 from services.terrain_nav.calibration import derive_n_limits, n_max_from
 from services.terrain_nav.config import TerrainNavConfig
 from services.terrain_nav.core import TerrainNavigator
-from services.terrain_nav.harness import run_flight
 from services.terrain_nav.metrics import fix_errors_cells
+from services.terrain_nav.offline import run_flight
 from services.terrain_nav.resampler import CellMeasurement, CellResampler
 from services.terrain_nav.simulation import FailureSpec, FlightScenario, SimulatedFlight, simulate
 from services.terrain_nav.sync import Synchroniser

@@ -1,6 +1,5 @@
-"""Aircraft heading, pitch and roll from monostatic radar plots (digest 004): pure core, simulation, metrics."""
+"""Aircraft heading, pitch and roll from monostatic radar plots (digest 004): pure core, simulation, metrics.
 
-from .config import RADAR_PRESETS, AttitudeConfig, MeasurementSigmas
-from .core import AttitudeCore, TrackSnapshot
-
-__all__ = ["RADAR_PRESETS", "AttitudeConfig", "AttitudeCore", "MeasurementSigmas", "TrackSnapshot"]
+The package imports nothing on purpose: loading the plugin registry (every ``services/*/plugin.py``) must
+not import every estimator's core and its dependencies into every service process. Import the modules.
+"""

@@ -13,7 +13,7 @@ digest's table scans.
 Parameters (``estimators[].params`` of the scenario, :class:`Params`):
 
 * ``site_id``: the radar site (default: the site of the scenario's only ``attitude`` simulator);
-* ``reference`` (default true): the digest's reference-run rules (:func:`~.evaluation.evaluation_config`:
+* ``reference`` (default true): the digest's reference-run rules (:func:`~.offline.evaluation_config`:
   angles at every scan from scan 3 on, the service's suppression of undefined angles off), so the figures
   compare with the digest's tables; false scores the service's own configuration;
 * ``config``: any :class:`~services.attitude.config.AttitudeConfig` field (e.g. ``sigma_jerk_mps3``); the raw
@@ -42,9 +42,9 @@ from shared.mc_params import check_config_overrides
 
 from .config import AttitudeConfig
 from .core import AttitudeCore
-from .evaluation import evaluation_config
 from .metrics import ANGLE_FIELDS, RunRecorder, phase_samples, phase_table
 from .metrics import aggregate as aggregate_records
+from .offline import evaluation_config
 from .service import ESTIMATOR
 from .simulator import AttitudeSimParams, enu_to_nue
 

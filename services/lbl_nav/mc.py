@@ -2,7 +2,7 @@
 
 :func:`run_metrics` is a pure function of what the estimator published (its ``LblFix`` on
 ``fixstream/fix/lbl/<vehicle>`` and ``LblEvent`` on ``.../event``, exactly what a recording holds) and of the
-scenario's events (the vehicle's ``Truth``): the run's trace (:func:`services.lbl_nav.experiment.
+scenario's events (the vehicle's ``Truth``): the run's trace (:func:`services.lbl_nav.offline.
 trace_from_outputs`) scored by :func:`services.lbl_nav.metrics.run_metrics` — resolution time after launch,
 decision or merge, wrong decision (the accepted hypothesis is not the one nearest the truth at launch), and per
 time of the grid the position error and the filter's sigma of the single-hypothesis fix. Times are relative to
@@ -47,7 +47,7 @@ from shared.truth import truths_of
 from . import metrics
 from .config import LblNavConfig
 from .core import LblNavCore
-from .experiment import trace_from_outputs
+from .offline import trace_from_outputs
 from .service import event_key, fix_key
 from .simulator import LblSimParams, sim_params
 

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from .experiment import RunTrace
+from .offline import RunTrace
 
 
 def _at(tr: RunTrace, t: float) -> int | None:

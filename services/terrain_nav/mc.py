@@ -30,7 +30,8 @@ from . import metrics
 from .config import TerrainNavConfig
 from .core import TerrainNavigator
 from .service import ESTIMATOR, VERDICT_SUFFIX
-from .simulator import BARO_KIND, INS_KIND, KIND, RADALT_KIND, RESET_KIND, TerrainFlightParams, scenario_world
+from .simulator import KIND, TerrainFlightParams, scenario_world
+from .topics import BARO_KIND, INS_KIND, RADALT_KIND, RESET_KIND
 
 
 class Params(BaseModel):

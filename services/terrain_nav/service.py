@@ -58,7 +58,7 @@ from shared.settings import ServiceSettings, ZenohSettings
 from .config import TerrainNavConfig
 from .core import Evaluation, TerrainNavigator
 from .maps import ReferenceMap, load_map, resolve_map_path
-from .simulator import BARO_KIND, INS_KIND, RADALT_KIND, RESET_KIND
+from .topics import BARO_KIND, INS_KIND, RADALT_KIND, RESET_KIND
 
 log = logging.getLogger("fixstream.terrain_nav")
 

@@ -52,10 +52,9 @@ from shared import keys
 from .maps import ReferenceMap, load_map
 from .simulation import FailureSpec, FlightScenario, PathSamples, SimulatedFlight, World, make_world, simulate_flight
 from .terrain import TerrainType
+from .topics import INS_KIND, RADALT_KIND
 
 KIND = "terrain_nav"
-#: sensor kinds (the fourth key chunk) of the streams the service reads
-INS_KIND, RADALT_KIND, BARO_KIND, RESET_KIND = "ins", "radalt", "baro", "reset"
 #: a drawn terrain seed stays below 2**31, so it is exact in the float ``Truth.extra``
 TERRAIN_SEED_MAX = 2**31
 #: largest difference (m) between a map file and the generated DEM that still counts as the same map

@@ -114,7 +114,7 @@ def lbl_items(
 
     from services.lbl_nav import simulation
     from services.lbl_nav.core import LblNavCore
-    from services.lbl_nav.experiment import scenario_config
+    from services.lbl_nav.offline import scenario_config
     from shared.errors import InputRejected
 
     sp = simulation.s1_spec() if spec == "s1" else simulation.s2_spec()
@@ -156,7 +156,7 @@ def rd_items(seed: int = 1, duration_s: float = 300.0, offset_s: float = 0.0) ->
     from services.coordinator.config import CoordinatorConfig
     from services.coordinator.core import CoordinatorCore
     from services.rd_nav import simulation
-    from services.rd_nav.inprocess import run
+    from services.rd_nav.offline import run
 
     cfg = simulation.fleet(duration_s=duration_s)
     coord = CoordinatorCore(CoordinatorConfig())
