@@ -6,6 +6,9 @@ here as explicit maps (east, north, up from the frame's axes), on blocks whose c
 
 from __future__ import annotations
 
+import importlib.util
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -123,3 +126,40 @@ def test_an_unvalidated_block_is_the_validated_one(mean: list[float], seed: int)
     b = gaussian("pcl_enu", CV_STATE, mean, cov, validate=False)
     assert a == b and a.model_dump() == b.model_dump() and b.model_fields_set == a.model_fields_set
     assert GaussianEstimate.model_validate(b.model_dump()) == a
+
+
+def test_the_fieldmap_table_turns_an_old_layout_message_into_the_new_one() -> None:
+    """bench/outputs_fieldmap.py's table on hand-written messages of the old layout (base 6889e57's fields)."""
+    from samples_pcl_tracker import EXAMPLES as PCL
+    from samples_rd_nav import EXAMPLES as RD
+
+    spec = importlib.util.spec_from_file_location(
+        "outputs_fieldmap", Path(__file__).parents[1] / "bench/outputs_fieldmap.py"
+    )
+    assert spec is not None and spec.loader is not None
+    fieldmap = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fieldmap)
+    to_new_layout = fieldmap.to_new_layout
+    from shared import codec
+
+    rd = codec.unpack(codec.encode(RD["RdNavFix"]))
+    old = {k: v for k, v in rd.items() if k not in ("estimate", "depth_m")}
+    old.update(position_ned_m=[*rd["estimate"]["mean"], rd["depth_m"]], cov_xy_m2=rd["estimate"]["covariance"])
+    assert to_new_layout("RdNavFix", old) and old == rd
+    assert not to_new_layout("RdNavFix", rd)  # the new layout is left alone
+
+    scan = codec.unpack(codec.encode(PCL["PclScanReport"]))
+    old_scan = {**scan, "tracks": []}
+    for t in scan["tracks"]:
+        e, b = t["estimate"], t["bistatic"]
+        rest = {k: v for k, v in t.items() if k not in ("estimate", "bistatic")}
+        old_scan["tracks"].append(
+            {
+                **rest,
+                "state_enu": e["mean"],
+                "cov_enu": e["covariance"],
+                "bistatic": b["mean"],
+                "bistatic_cov": b["covariance"],
+            }
+        )
+    assert to_new_layout("PclScanReport", old_scan) and old_scan == scan
