@@ -163,3 +163,21 @@ def test_the_fieldmap_table_turns_an_old_layout_message_into_the_new_one() -> No
             }
         )
     assert to_new_layout("PclScanReport", old_scan) and old_scan == scan
+
+
+def test_a_message_type_without_a_view_is_converted_through_its_block() -> None:
+    from schemas import Message
+    from shared.foxglove.frames import estimates_of
+
+    class _Sounding(Message):  # a leading underscore: not registered among the wire models
+        estimate: GaussianEstimate
+        valid: bool = True
+
+    cov = [[4.0, 1.0], [1.0, 9.0]]
+    msg = _Sounding(header=Header(stamp_ns=5), estimate=gaussian("base_ned", HORIZONTAL, [10.0, 20.0], cov))
+    (e,) = estimates_of("fixstream/fix/sonar/auv7", msg, CTX)
+    assert (e.kind, e.entity, e.stamp_ns, e.valid, e.horizontal_only) == ("fix", "auv7", 5, True, True)
+    np.testing.assert_array_equal(e.position, [20.0, 10.0, 0.0])  # NED x north, y east -> east, north
+    assert e.cov is not None and e.cov[:2, :2].tolist() == [[9.0, 1.0], [1.0, 4.0]]
+    invalid = msg.model_copy(update={"valid": False})
+    assert not estimates_of("fixstream/fix/sonar/auv7", invalid, CTX)[0].valid

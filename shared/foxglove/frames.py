@@ -196,7 +196,9 @@ def estimates_of(key: str, msg: Message, ctx: FrameContext) -> list[Estimate]:
     """The positions a message carries, in scenario ENU (empty for messages that carry none).
 
     ``Truth`` and the generic ``Fix`` and ``Track`` are converted here; an estimator's own output types by the
-    converter its plugin declares for the type name (``Plugin.views``, :func:`shared.plugins.view_converter`)."""
+    converter its plugin declares for the type name (``Plugin.views``, :func:`shared.plugins.view_converter`); any
+    other message whose ``estimate`` is a Gaussian block with a position becomes one ``fix`` named after the last
+    chunk of its key (its ``platform`` if it has one), valid unless its ``valid`` says otherwise."""
     name = type(msg).__name__
     fn = _truth if name == "Truth" else view_converter(name)
     if fn is not None:
@@ -205,7 +207,21 @@ def estimates_of(key: str, msg: Message, ctx: FrameContext) -> list[Estimate]:
         return _fix(key, msg, ctx)
     if isinstance(msg, Track):
         return _track(key, msg, ctx)
+    block = getattr(msg, "estimate", None)
+    if isinstance(block, GaussianEstimate):
+        return _any_block(key, msg, block, ctx)
     return []
+
+
+def _any_block(key: str, msg: Any, block: GaussianEstimate, ctx: FrameContext) -> list[Estimate]:
+    got = gaussian_position(block, ctx)
+    if got is None:
+        return []
+    platform = getattr(msg, "platform", None)
+    entity = platform if isinstance(platform, str) else key.rsplit("/", 1)[-1]
+    valid = getattr(msg, "valid", True) is not False
+    stamp = msg.header.stamp_ns
+    return [Estimate("fix", entity, entity, stamp, got[0], got[1], valid, got[2], label=type(msg).__name__)]
 
 
 def _truth(key: str, msg: Any, ctx: FrameContext) -> list[Estimate]:
