@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from schemas.estimate import CV_STATE, HORIZONTAL, POSITION, VELOCITY, GaussianEstimate, Layout
 
-_setattr = object.__setattr__
+from .models import built
 
 
 def gaussian(
@@ -25,19 +25,13 @@ def gaussian(
 
     ``validate=False`` skips the schema's checks (the O(n^3) positive semi-definite test among them) for the
     services that build from values valid by construction and validate only on request, as they already did for
-    their covariance fields; the instance is then the one ``model_construct`` builds (every field given), made
-    without its per-field loop (a few µs: the PCL tracker builds two per track and scan). The values are stored
-    as given either way."""
+    their covariance fields; the instance is then the one ``model_construct`` builds (:func:`shared.models.built`:
+    about 2 µs, the PCL tracker builds two per track and scan). The values are stored as given either way."""
     components, units = list(layout.components), list(layout.units)
     if validate:
         return GaussianEstimate(frame=frame, components=components, units=units, mean=mean, covariance=covariance)
     values = {"frame": frame, "components": components, "units": units, "mean": mean, "covariance": covariance}
-    obj = GaussianEstimate.__new__(GaussianEstimate)
-    _setattr(obj, "__dict__", values)
-    _setattr(obj, "__pydantic_fields_set__", set(values))
-    _setattr(obj, "__pydantic_extra__", None)
-    _setattr(obj, "__pydantic_private__", None)
-    return obj
+    return built(GaussianEstimate, values)
 
 
 __all__ = ["CV_STATE", "HORIZONTAL", "POSITION", "VELOCITY", "Layout", "gaussian"]

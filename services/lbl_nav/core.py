@@ -34,6 +34,7 @@ from schemas.estimate import GaussianEstimate
 from schemas.lbl_nav import LBL_STATE, LblEvent, LblFix
 from shared.errors import InputRejected
 from shared.estimates import POSITION, gaussian
+from shared.models import built
 
 from . import initiation
 from .config import LblNavConfig
@@ -58,23 +59,15 @@ def _model_info(cls: type[BaseModel]) -> tuple[dict[str, Any], int, bool]:
     return info
 
 
-_setattr = object.__setattr__
-
-
 def _construct(cls: type[M], kw: dict[str, Any]) -> M:
     """``cls.model_construct(**defaults, **kw)`` without its per-field loop (a fifth of its cost): every field of
     the model is given (the non-factory defaults merged in), so the instance is the one model_construct builds —
-    the same ``__dict__`` and fields set, no extra, no private attributes (the schemas have none)."""
+    the same ``__dict__`` and fields set, no extra, no private attributes: :func:`shared.models.built`)."""
     defaults, n_fields, post_init = _model_info(cls)
     values = {**defaults, **kw}
     if len(values) != n_fields or post_init:
         return cls.model_construct(**values)
-    obj = cls.__new__(cls)
-    _setattr(obj, "__dict__", values)
-    _setattr(obj, "__pydantic_fields_set__", set(values))
-    _setattr(obj, "__pydantic_extra__", None)
-    _setattr(obj, "__pydantic_private__", None)
-    return obj
+    return built(cls, values)
 
 
 #: [IMPL] physically possible values of the DR inputs (m/s, m); anything beyond is refused before use, so that a
