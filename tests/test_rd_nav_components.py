@@ -112,3 +112,32 @@ def test_a_collapsed_cloud_reports_a_positive_definite_covariance(ax: float, ay:
         assert fix.nis == (nis if nis is not None and np.isfinite(nis) else None)
         assert fix.beacons_used == (["lead", "f0"] if cycle_status == "USED" else [])
         assert fix.flags == ["A", "B"] and fix.depth_m == 0.0 and fix.valid
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    M=st.integers(2, 5),
+)
+def test_the_dr_error_jacobian_is_the_derivative_of_the_compensated_prediction(seed: int, M: int) -> None:
+    """h_j(p, delta_j - G_j e): central differences in e (an independent computation) against
+    error_jacobian(follower_units, G), used by the gate, the PF weights and the EKF shadow. (It once took the
+    full dh/dp row u_j - u_1 in place of u_j: the leader's range does not move with delta_j.)"""
+    from services.rd_nav.geometry import error_jacobian, follower_units, predict_d
+
+    rng = np.random.default_rng(seed)
+    p = rng.uniform(-800.0, 800.0, (1, 2))
+    leader = np.array([*rng.uniform(-1500.0, 1500.0, 2), 10.0])
+    followers = np.column_stack([rng.uniform(-1500.0, 1500.0, (M, 2)), rng.uniform(5.0, 50.0, M)])
+    delta = rng.normal(0.0, 20.0, (M, 2))
+    G = rng.normal(0.0, 30.0, (M, 2, 3))
+    z1, zj = 40.0, rng.uniform(20.0, 60.0, M)
+
+    def h(e: np.ndarray) -> np.ndarray:
+        comp = delta - np.einsum("mij,j->mi", G, e)
+        return predict_d(p, leader, followers, comp, z1, zj)[0]
+
+    step = 1e-4
+    numeric = np.column_stack([(h(step * u) - h(-step * u)) / (2 * step) for u in np.eye(3)])
+    analytic = error_jacobian(follower_units(p[0], zj, delta, followers), G)
+    np.testing.assert_allclose(analytic, numeric, rtol=1e-5, atol=1e-7)

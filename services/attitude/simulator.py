@@ -17,6 +17,15 @@ true (range, azimuth, elevation) + independent Gaussian noise with the radar's s
   coordinated flight, and ``extra``: true ``range_m``, ``az_deg``, ``el_deg`` seen from the radar and
   ``speed_mps``.
 
+A target with ``track`` (:class:`~services.player.simulators.recorded_track.TrackFileParams`) flies a recorded
+trajectory file instead (docs/scenarios.md, "Trajectory files"; an ADS-B log, say): its local frame must be the
+radar's (``track.origin`` at the radar for a geodetic file; the radar sits at ``site_position_m`` of that frame),
+and its plots end with the track (``end_s`` is capped at the track's last row). The truth angles are those of
+the estimator's convention (:func:`~services.attitude.simulation.coordinated_roll`, heading and flight-path
+angle of the velocity), from the track's smoothed velocity and acceleration, or the recorded heading, pitch and
+roll when the file has them; ``phases`` of a track come from its smoothed motion (turn: roll above
+TURN_ROLL_DEG; manoeuvre: acceleration above TRACK_MANOEUVRE_ACCEL_MPS2).
+
 Every target's trajectory is registered in the scenario context under its id (ENU, for later simulators).
 Randomness: target ``<id>``'s plot noise comes from the child stream ``noise/<id>``, its detection draws from
 ``detect/<id>`` and the generated targets (``random_targets``) from ``random_targets``, so adding a target
@@ -44,6 +53,7 @@ from services.player.simulators import (
     child_rng,
     register,
 )
+from services.player.simulators.recorded_track import RecordedTrack, TrackFileParams, load_cached
 from shared import keys
 
 from .config import RADAR_PRESETS, MeasurementSigmas, RadarPreset
@@ -52,6 +62,7 @@ from .simulation import (
     Segment,
     TruthStates,
     Wander,
+    coordinated_roll,
     fly,
     manoeuvring_plans,
     measure,
@@ -167,13 +178,17 @@ def _pair(rate: float | list[float]) -> tuple[float, float]:
 
 
 class TargetParams(SimParams):
-    """One aircraft: a named plan, or a start state and segments (after the last one it flies straight)."""
+    """One aircraft: a named plan, a start state and segments (after the last one it flies straight), or a
+    recorded track."""
 
     id: KeyChunk = Field(description="target id: RadarPlot.target_id and the truth key fixstream/truth/<id>")
     plan: Literal["paper", "turn30", "climb10", "weave"] | None = Field(
         default=None, description="a named plan: paper (§3.1: 100 km, 60 deg, 5 km, 220 deg, 200 m/s) or manoeuvring"
     )
     start: StartParams | None = Field(default=None, description="initial state (instead of plan)")
+    track: TrackFileParams | None = Field(
+        default=None, description="a recorded trajectory (instead of plan or start); local frame = the radar's"
+    )
     segments: list[SegmentParams] = Field(default_factory=list, max_length=1000)
     phase_s: float = Field(default=0.0, ge=0.0, description="time of the target's first plot, s")
     end_s: float | None = Field(default=None, gt=0.0, description="no plots after this time, s (None: to the end)")
@@ -188,8 +203,14 @@ class TargetParams(SimParams):
 
     @model_validator(mode="after")
     def _one_plan(self) -> TargetParams:
-        if (self.plan is None) == (self.start is None):
-            raise ValueError("give exactly one of plan and start")
+        if sum(x is not None for x in (self.plan, self.start, self.track)) != 1:
+            raise ValueError("give exactly one of plan and start (or a track instead of either)")
+        if self.track is not None:
+            if self.segments or self.wander is not None:
+                raise ValueError("a recorded track is the whole motion: no segments or wander with it")
+            if self.phase_s < self.track.time_offset_s:
+                raise ValueError("phase_s: the first plot cannot be before the track's first row (time_offset_s)")
+            load_cached(self.track)  # a missing or malformed file is a parameter error
         if self.plan is not None and self.segments:
             raise ValueError("segments go with start, not with a named plan")
         if self.end_s is not None and self.end_s < self.phase_s:
@@ -311,6 +332,9 @@ class AttitudeSimParams(SimParams):
 #: a commanded acceleration above this (m/s^2) is a manoeuvre; a commanded roll above TURN_ROLL_DEG is a turn
 MANOEUVRE_ACCEL_MPS2 = 1e-3
 TURN_ROLL_DEG = 5.0
+#: a recorded track commands nothing: its smoothed acceleration above this (m/s^2, 0.1 g) is a manoeuvre (the
+#: GCV spline of a 1 Hz ADS-B-like track with 3 m noise wobbles by up to 1 m/s^2 on straight legs)
+TRACK_MANOEUVRE_ACCEL_MPS2 = 0.1 * 9.81
 
 
 class TargetTruth:
@@ -354,17 +378,54 @@ class TargetTruth:
         )
 
 
+class TrackTargetTruth:
+    """Truth of a target flying a recorded track (the interface of :class:`TargetTruth`), radar frame E."""
+
+    def __init__(self, track: RecordedTrack, site_enu_m: list[float]) -> None:
+        self.track = track
+        self.site = np.asarray(site_enu_m, dtype=np.float64)
+
+    def states(self, stamps_ns: np.ndarray) -> TruthStates:
+        """The track at the stamps in frame E: position from the radar, velocity, acceleration; heading and
+        flight-path angle of the velocity (or recorded); roll of coordinated flight (or recorded)."""
+        t = np.asarray(stamps_ns, dtype=np.float64) / NS_PER_S
+        st = self.track.states(t)
+        p, v, a = enu_to_nue(st.position_m - self.site), enu_to_nue(st.velocity_mps), enu_to_nue(st.acceleration_mps2)
+        gamma = st.roll_rad if self.track.has_attitude else coordinated_roll(v, a)
+        return TruthStates(t, p, v, a, np.mod(st.heading_rad, 2 * math.pi), st.pitch_rad, gamma)
+
+    def phases(self, stamps_ns: np.ndarray) -> dict[str, np.ndarray]:
+        """As :meth:`TargetTruth.phases`, from the smoothed motion (see the module docstring)."""
+        st = self.states(stamps_ns)
+        man = np.linalg.norm(st.a, axis=1) > TRACK_MANOEUVRE_ACCEL_MPS2
+        turn = np.abs(np.degrees(st.gamma)) > TURN_ROLL_DEG
+        man |= turn
+        since = np.empty(st.t_s.size)
+        last_end = self.track.start_s
+        for k in range(st.t_s.size):
+            if man[k]:
+                last_end = st.t_s[k]
+            since[k] = st.t_s[k] - last_end
+        return {"manoeuvre": man.astype(np.float64), "turn": turn.astype(np.float64), "since_manoeuvre_s": since}
+
+    def truth_at(self, stamps_ns: np.ndarray) -> TruthState:
+        st = self.states(stamps_ns)
+        return TruthState(self.site + nue_to_enu(st.p), nue_to_enu(st.v), st.psi, st.theta, st.gamma)
+
+
 @dataclass(frozen=True)
 class _Target:
-    """A target's plan and schedule, resolved from :class:`TargetParams` or drawn by :class:`RandomTargets`."""
+    """A target's plan (or recorded track) and schedule, resolved from :class:`TargetParams` or drawn by
+    :class:`RandomTargets`."""
 
     id: str
-    plan: FlightPlan
+    plan: FlightPlan | None
     phase_s: float
     end_s: float | None = None
     missed: frozenset[int] = frozenset()
     p_detect: float = 1.0
     track_end: bool = False
+    track: RecordedTrack | None = None
 
 
 @register("attitude")
@@ -381,18 +442,29 @@ class AttitudeRadar:
         self.site_key = site_key(params.site_id, params.sensor_id)
         self.end_key = track_end_key(params.site_id, params.sensor_id)
         self.sigmas = params.sigmas()
-        self.targets = [
-            _Target(t.id, self._wandering(t), t.phase_s, t.end_s, frozenset(t.missed_scans), t.p_detect, t.track_end)
-            for t in params.targets
-        ]
+        self.targets = [self._target(t) for t in params.targets]
         if params.random_targets is not None:
             self.targets.extend(self._random_targets(params.random_targets, child_rng(rng, "random_targets")))
         ids = [t.id for t in self.targets]
         if len(set(ids)) != len(ids):
             raise ValueError("a generated target id equals a listed one; change random_targets.prefix")
-        self.truths = {t.id: TargetTruth(t.plan, params.site_position_m) for t in self.targets}
+        self.truths = {t.id: self._truth_source(t) for t in self.targets}
         for tid, source in self.truths.items():
             context.register_platform(tid, source)
+
+    def _target(self, t: TargetParams) -> _Target:
+        missed = frozenset(t.missed_scans)
+        if t.track is None:
+            return _Target(t.id, self._wandering(t), t.phase_s, t.end_s, missed, t.p_detect, t.track_end)
+        track = load_cached(t.track)
+        end = track.end_s if t.end_s is None else min(t.end_s, track.end_s)
+        return _Target(t.id, None, t.phase_s, end, missed, t.p_detect, t.track_end, track)
+
+    def _truth_source(self, t: _Target) -> TargetTruth | TrackTargetTruth:
+        if t.track is not None:
+            return TrackTargetTruth(t.track, self.params.site_position_m)
+        assert t.plan is not None
+        return TargetTruth(t.plan, self.params.site_position_m)
 
     def _wandering(self, target: TargetParams) -> FlightPlan:
         """The target's plan with its wander, a realisation drawn from the stream ``wander/<id>`` of this run."""
@@ -510,6 +582,7 @@ __all__ = [
     "StartParams",
     "TargetParams",
     "TargetTruth",
+    "TrackTargetTruth",
     "WanderParams",
     "enu_to_nue",
     "nue_to_enu",

@@ -82,6 +82,20 @@ class ScenarioSpec:
         return h
 
 
+@dataclass(frozen=True)
+class RecordedPath:
+    """A recorded trajectory sampled at the epochs, replacing the synthetic motion (heading knots, speed, yaw).
+
+    ``x_m``, ``y_m`` (east, north) and ``depth_m`` are the truth at each epoch, ``heading_rad`` the true heading
+    there; ``v0_en_mps`` the ground velocity at the first epoch (its interval has no previous epoch)."""
+
+    x_m: F64
+    y_m: F64
+    depth_m: F64
+    heading_rad: F64
+    v0_en_mps: tuple[float, float]
+
+
 @dataclass
 class SimRun:
     """One realisation: epoch times, truth, the error draws and the input messages."""
@@ -132,11 +146,18 @@ def simulate(
     rng: np.random.Generator,
     seed: int = 0,
     header: Callable[[int, int], Header] | None = None,
+    path: RecordedPath | None = None,
 ) -> SimRun:
     """Truth, error draws and the message stream of one run (draw order fixed, all beacons drawn every epoch).
 
     ``header(stamp_ns, epoch_index)`` makes the messages' headers (default: frame ``local_en_depth``, source
-    ``sim``, seq = the epoch index)."""
+    ``sim``, seq = the epoch index).
+
+    ``path``: a recorded trajectory as the truth (the spec's heading knots, speed, sway and yaw are not used).
+    The ground velocity of the interval ending at epoch i is (p_i - p_(i-1)) / dt; the log measures it less the
+    known current and dU, resolved on the true heading K_i (forward, starboard), plus its noise: so dead
+    reckoning with the true heading and the noise-free log reproduces the recorded positions at every epoch
+    exactly, as the synthetic truth does. The depth sensor and the slant ranges use the recorded depth."""
     dt = spec.dt_s
     n0 = round(-spec.t_start_s / dt)
     t = np.asarray((np.arange(round((spec.t_end_s - spec.t_start_s) / dt) + 1) - n0) * dt, dtype=np.float64)
@@ -151,29 +172,40 @@ def simulate(
     delta = spec.sigma_delta_m * rng.standard_normal(n)
     v = spec.sigma_v_m * rng.standard_normal((n, nb))
     # truth
-    K = np.radians(spec.heading_deg(t))
     un, ue = spec.known_current_ne_mps
-    vE = spec.speed_mps * np.sin(K) + spec.v_starboard_mps * np.cos(K) + ue + dUE
-    vN = spec.speed_mps * np.cos(K) - spec.v_starboard_mps * np.sin(K) + un + dUN
-    x = np.empty(n)
-    y = np.empty(n)
-    x[n0], y[n0] = spec.launch_xy_m
-    for i in range(n0 + 1, n):
-        x[i] = x[i - 1] + vE[i] * dt
-        y[i] = y[i - 1] + vN[i] * dt
-    for i in range(n0, 0, -1):
-        x[i - 1] = x[i] - vE[i] * dt
-        y[i - 1] = y[i] - vN[i] * dt
+    if path is None:
+        K = np.radians(spec.heading_deg(t))
+        vE = spec.speed_mps * np.sin(K) + spec.v_starboard_mps * np.cos(K) + ue + dUE
+        vN = spec.speed_mps * np.cos(K) - spec.v_starboard_mps * np.sin(K) + un + dUN
+        x = np.empty(n)
+        y = np.empty(n)
+        x[n0], y[n0] = spec.launch_xy_m
+        for i in range(n0 + 1, n):
+            x[i] = x[i - 1] + vE[i] * dt
+            y[i] = y[i - 1] + vN[i] * dt
+        for i in range(n0, 0, -1):
+            x[i - 1] = x[i] - vE[i] * dt
+            y[i - 1] = y[i] - vN[i] * dt
+        vf = spec.speed_mps + log_noise[:, 0]
+        vs = spec.v_starboard_mps + log_noise[:, 1]
+        depth: F64 | float = spec.auv_depth_m
+    else:
+        if path.x_m.size != n:
+            raise ValueError(f"the recorded path has {path.x_m.size} epochs, the spec {n}")
+        K, x, y, depth = path.heading_rad, path.x_m, path.y_m, path.depth_m
+        vE = np.concatenate([[path.v0_en_mps[0]], np.diff(x) / dt])
+        vN = np.concatenate([[path.v0_en_mps[1]], np.diff(y) / dt])
+        wE, wN = vE - ue - dUE, vN - un - dUN  # through the water
+        vf = wE * np.sin(K) + wN * np.cos(K) + log_noise[:, 0]
+        vs = wE * np.cos(K) - wN * np.sin(K) + log_noise[:, 1]
     K_meas = K - dK
-    vf = spec.speed_mps + log_noise[:, 0]
-    vs = spec.v_starboard_mps + log_noise[:, 1]
     stamps = np.round((spec.epoch0_s + t) * NS).astype(np.int64)
     # visibility and ranges
     visible: dict[str, NDArray[np.bool_]] = {}
     ranges = np.empty((n, nb))
     for j, b in enumerate(spec.beacons):
         hor = np.hypot(b.x_east_m - x, b.y_north_m - y)
-        D = np.sqrt(hor**2 + (b.depth_m - spec.auv_depth_m) ** 2)
+        D = np.sqrt(hor**2 + (b.depth_m - depth) ** 2)
         ranges[:, j] = D + dc * D / spec.c_nominal_mps + delta + v[:, j]
         in_range = hor <= spec.reception_m
         vis = np.where(t < 0, in_range & (b.beacon_id in spec.pre_launch_beacons), in_range)
@@ -200,7 +232,7 @@ def simulate(
         )
         msgs.append(SpeedLog(header=h, v_forward_mps=float(vf[i]), v_starboard_mps=float(vs[i]), avg_interval_s=dt))
         msgs.append(Heading(header=h, heading_rad=float(math.remainder(K_meas[i], 2.0 * math.pi))))
-        msgs.append(Depth(header=h, depth_m=spec.auv_depth_m))
+        msgs.append(Depth(header=h, depth_m=spec.auv_depth_m if path is None else float(path.depth_m[i])))
         for j, b in enumerate(spec.beacons):
             if visible[b.beacon_id][i] and ranges[i, j] > 0.0:
                 if spec.ranges_as_travel_time:

@@ -9,6 +9,14 @@ epoch exactly ``launch_beacons``). ``preset`` picks the digest's scenario (``s1`
 field-like replica, ``s3`` geometry sweep at ``s3_angle_deg``); every other field, when given, overrides the
 preset's value.
 
+``track`` (:class:`~services.player.simulators.recorded_track.TrackFileParams`) takes the truth from a recorded
+trajectory file instead of the synthetic motion (docs/scenarios.md, "Trajectory files"): the epochs run from the
+track's first row (``track.time_offset_s``) every ``dt_s`` to its end, the launch epoch is ``pre_launch_s`` after
+the first, and the log, heading, depth and ranges are made from the recorded positions, heading and depth
+(:func:`services.lbl_nav.simulation.simulate`, ``path``). It excludes the motion fields (``start_s``,
+``post_launch_s``, ``launch_xy_m``, ``heading_knots``, ``speed_mps``, ``v_starboard_mps``, ``auv_depth_m``,
+``yaw_*``).
+
 ``dropouts`` silence a stream (log, heading, depth or ranges) for an interval of the scenario clock.
 
 Time: the first epoch is at ``start_s`` on the scenario clock and the launch epoch (two beacons heard) at
@@ -44,9 +52,10 @@ from pydantic import AfterValidator, Field, model_validator
 
 from schemas import BeaconRange, BeaconTable, Current, Depth, Heading, Message, SpeedLog, Truth
 from services.player.simulators import NS_PER_S, Event, ScenarioContext, SimParams, TruthState, register
+from services.player.simulators.recorded_track import RecordedTrack, TrackFileParams, load_cached
 from shared import keys
 
-from .simulation import ScenarioSpec, SimBeacon, SimRun, s1_spec, s2_spec, s3_spec, simulate
+from .simulation import RecordedPath, ScenarioSpec, SimBeacon, SimRun, s1_spec, s2_spec, s3_spec, simulate
 
 KeyChunk = Annotated[str, AfterValidator(keys.chunk)]
 Pair = Annotated[list[float], Field(min_length=2, max_length=2)]
@@ -103,6 +112,18 @@ class BeaconParams(SimParams):
 
 
 PRESETS: dict[str, ScenarioSpec] = {"s1": s1_spec(), "s2": s2_spec()}
+#: the fields of the synthetic motion, which a recorded track replaces
+MOTION_FIELDS = (
+    "post_launch_s",
+    "launch_xy_m",
+    "heading_knots",
+    "speed_mps",
+    "v_starboard_mps",
+    "auv_depth_m",
+    "yaw_amplitude_deg",
+    "yaw_period_s",
+    "yaw_bumps",
+)
 
 
 class LblSimParams(SimParams):
@@ -153,10 +174,23 @@ class LblSimParams(SimParams):
     ranges_as_travel_time: bool | None = Field(default=None, description="publish travel_time_s instead of range_m")
     publish_truth: bool = Field(default=True, description="publish Truth on fixstream/truth/<platform>")
     dropouts: list[DropoutParams] = Field(default_factory=list, max_length=1000, description="sensor outages")
+    track: TrackFileParams | None = Field(
+        default=None, description="truth from a recorded trajectory file instead of the synthetic motion"
+    )
 
     @model_validator(mode="after")
     def _check(self) -> LblSimParams:
+        if self.track is not None:
+            given = [f for f in MOTION_FIELDS if getattr(self, f) is not None]
+            given += ["start_s"] if "start_s" in self.model_fields_set else []
+            if given:
+                raise ValueError(
+                    f"track replaces the synthetic motion: remove {', '.join(given)} "
+                    "(the epochs start at track.time_offset_s and end with the track)"
+                )
         spec = self.spec()
+        if spec.t_end_s < 0.0:
+            raise ValueError(f"pre_launch_s {-spec.t_start_s:g} s is longer than the recorded track")
         n_pre = -spec.t_start_s / spec.dt_s
         if abs(n_pre - round(n_pre)) > 1e-9 or abs(spec.t_end_s / spec.dt_s - round(spec.t_end_s / spec.dt_s)) > 1e-9:
             raise ValueError("pre_launch_s and post_launch_s must be multiples of dt_s")
@@ -216,6 +250,10 @@ class LblSimParams(SimParams):
         if self.known_current_ne_mps is not None:
             upd["known_current_ne_mps"] = (self.known_current_ne_mps[0], self.known_current_ne_mps[1])
         spec = replace(base, **upd)
+        if self.track is not None:
+            track = load_cached(self.track)
+            span = math.floor((track.end_s - track.start_s) / spec.dt_s + 1e-9) * spec.dt_s
+            return replace(spec, t_end_s=span + spec.t_start_s, epoch0_s=track.start_s - spec.t_start_s)
         return replace(spec, epoch0_s=self.start_s - spec.t_start_s)
 
     @property
@@ -253,6 +291,36 @@ class SimTruth:
         zeros = np.zeros(s.size)
         return TruthState(pos, self.vel[i], self.heading[i], zeros, zeros.copy())
 
+    def pitch_roll(self, i: int) -> tuple[float, float]:
+        """Pitch and roll at epoch i (rad): a synthetic AUV flies level."""
+        return (0.0, 0.0)
+
+
+class TrackTruth(SimTruth):
+    """Truth at the epochs of a recorded track: its positions, velocity and attitude (the simulator registers
+    the track itself as the platform's truth source)."""
+
+    def __init__(self, track: RecordedTrack, run: SimRun) -> None:
+        st = track.states(run.stamps_ns / NS_PER_S)
+        self.t_ns = run.stamps_ns.astype(np.float64)
+        self.pos = st.position_m
+        self.vel = st.velocity_mps
+        self.heading = np.mod(run.heading_true_rad, 2.0 * math.pi)
+        self.pitch = st.pitch_rad
+        self.roll = st.roll_rad
+
+    def pitch_roll(self, i: int) -> tuple[float, float]:
+        return (float(self.pitch[i]), float(self.roll[i]))
+
+
+def recorded_path(track: RecordedTrack, spec: ScenarioSpec) -> RecordedPath:
+    """The track at the epochs of ``spec`` (scenario times ``epoch0_s + t``)."""
+    n0 = round(-spec.t_start_s / spec.dt_s)
+    k = np.arange(round((spec.t_end_s - spec.t_start_s) / spec.dt_s) + 1) - n0
+    st = track.states(np.asarray(spec.epoch0_s + k * spec.dt_s, dtype=np.float64))
+    p, v = st.position_m, st.velocity_mps
+    return RecordedPath(p[:, 0], p[:, 1], -p[:, 2], st.heading_rad, (float(v[0, 0]), float(v[0, 1])))
+
 
 @register("lbl_nav")
 class LblNavSimulator:
@@ -264,9 +332,14 @@ class LblNavSimulator:
         self.params = params
         self.context = context
         self.spec = params.spec()
-        self.run = simulate(self.spec, rng, context.seed, header=lambda stamp, _i: context.header(stamp))
-        self.truth = SimTruth(self.run)
-        context.register_platform(params.platform, self.truth)
+        self.track: RecordedTrack | None = None
+        path = None
+        if params.track is not None:
+            self.track = load_cached(params.track)
+            path = recorded_path(self.track, self.spec)
+        self.run = simulate(self.spec, rng, context.seed, header=lambda stamp, _i: context.header(stamp), path=path)
+        self.truth = SimTruth(self.run) if self.track is None else TrackTruth(self.track, self.run)
+        context.register_platform(params.platform, self.track if self.track is not None else self.truth)
         self.keys = sensor_keys(params.platform)
         self.truth_key = keys.truth(params.platform)
 
@@ -277,13 +350,13 @@ class LblNavSimulator:
             platform=self.params.platform,
             position_m=self.truth.pos[i].tolist(),
             velocity_mps=self.truth.vel[i].tolist(),
-            attitude_rad=[float(self.truth.heading[i]), 0.0, 0.0],
+            attitude_rad=[float(self.truth.heading[i]), *self.truth.pitch_roll(i)],
             extra={
                 "dK_rad": float(run.dK_rad[i]),
                 "dU_north_mps": float(run.dU_north_mps[i]),
                 "dU_east_mps": float(run.dU_east_mps[i]),
                 "dc_mps": float(run.dc_mps),
-                "depth_m": float(sp.auv_depth_m),
+                "depth_m": float(sp.auv_depth_m) if self.track is None else -float(self.truth.pos[i, 2]),
                 "t_from_launch_s": float(run.t_s[i]),
                 "beacons_visible": float(sum(bool(v[i]) for v in run.visible.values())),
             },
@@ -338,6 +411,8 @@ __all__ = [
     "LblNavSimulator",
     "LblSimParams",
     "SimTruth",
+    "TrackTruth",
+    "recorded_path",
     "sensor_keys",
     "sim_params",
 ]

@@ -11,8 +11,10 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from operator import attrgetter
+from typing import Any
 
 import numpy as np
+from pydantic import ValidationError
 
 from schemas.radar import BistaticPlot
 
@@ -169,3 +171,67 @@ def normalise_plots(
         rejected=rejected,
         flagged=flagged,
     )
+
+
+# ----- plots that fail the wire schema (the service's decoding, §5.6) ---------------------------------------
+
+
+def _plot_reason(exc: ValidationError) -> str:
+    """The reason a plot failed validation: ``nan``, ``out_of_range``, ``missing_quantity``, ``invalid_plot``."""
+    kinds = {str(e.get("type", "")) for e in exc.errors(include_url=False)}
+    if "finite_number" in kinds:
+        return "nan"
+    if kinds & {"greater_than_equal", "less_than_equal", "greater_than", "less_than"}:
+        return "out_of_range"
+    if "value_error" in kinds:
+        return "missing_quantity"
+    return "invalid_plot"
+
+
+_SIGMAS = ("sigma_rb_m", "sigma_az_deg", "sigma_el_deg", "sigma_vb_mps")
+
+
+def _sanitised(plot: Any) -> dict[str, Any] | None:
+    """A plot whose non-finite *sigmas* are passed on as invalid (-1) and non-finite SNR as absent, or None.
+
+    Digest §5.6: a NaN, non-positive or absurd sigma is replaced by the configured default and flagged
+    ``sigma_defaulted`` (the core does that for -1); it does not make the plot unusable. The wire format
+    refuses NaN, so this is the one place that turns it into a value the core treats as invalid.
+    """
+    if not isinstance(plot, dict):
+        return None
+    bad = [k for k in _SIGMAS if isinstance(plot.get(k), float) and not math.isfinite(plot[k])]
+    snr = plot.get("snr_db")
+    bad_snr = isinstance(snr, float) and not math.isfinite(snr)
+    if not bad and not bad_snr:
+        return None
+    fixed = dict(plot)
+    for k in bad:
+        fixed[k] = -1.0
+    if bad_snr:
+        fixed["snr_db"] = None
+    return fixed
+
+
+def salvage_plots(plots: list[Any]) -> tuple[list[Any], Counter[str]]:
+    """The plots of an undecodable scan that pass the schema (NaN sigmas / SNR repaired by :func:`_sanitised`),
+    and the others counted by reason (``nan``, ``out_of_range``, ``missing_quantity``, ``invalid_plot``)."""
+    good: list[Any] = []
+    dropped: Counter[str] = Counter()
+    for p in plots:
+        try:
+            BistaticPlot.model_validate(p, strict=True)
+            good.append(p)
+            continue
+        except ValidationError as pexc:
+            err = pexc
+        fixed = _sanitised(p)
+        if fixed is not None:
+            try:
+                BistaticPlot.model_validate(fixed, strict=True)
+                good.append(fixed)
+                continue
+            except ValidationError as pexc:
+                err = pexc
+        dropped[_plot_reason(err)] += 1
+    return good, dropped

@@ -38,22 +38,20 @@ from __future__ import annotations
 import gc
 import json
 import logging
-import math
 import os
 import time
 from collections import Counter
 from typing import Any, ClassVar, Literal
 
-from pydantic import ValidationError
-
 from schemas import Message, ScenarioMarker
 from schemas.pcl_tracker import PclScanReport
-from schemas.radar import BistaticConfigUpdate, BistaticPlot, BistaticScan
+from schemas.radar import BistaticConfigUpdate, BistaticScan
 from shared import codec, keys
 from shared.service import Output, Service, Subscription
 from shared.settings import ZenohSettings
 
 from .core import PclTracker
+from .plots import salvage_plots
 from .settings import PclTrackerSettings, PclTrackerSettingsBase, to_config
 
 log = logging.getLogger("fixstream.pcl_tracker")
@@ -73,43 +71,6 @@ def input_key(receiver_id: str, illuminator_id: str) -> str:
 
 def output_key(receiver_id: str, illuminator_id: str) -> str:
     return keys.track("pcl", receiver_id, illuminator_id)
-
-
-def _plot_reason(exc: ValidationError) -> str:
-    """The reason a plot failed validation: ``nan``, ``out_of_range``, ``missing_quantity``, ``invalid_plot``."""
-    kinds = {str(e.get("type", "")) for e in exc.errors(include_url=False)}
-    if "finite_number" in kinds:
-        return "nan"
-    if kinds & {"greater_than_equal", "less_than_equal", "greater_than", "less_than"}:
-        return "out_of_range"
-    if "value_error" in kinds:
-        return "missing_quantity"
-    return "invalid_plot"
-
-
-_SIGMAS = ("sigma_rb_m", "sigma_az_deg", "sigma_el_deg", "sigma_vb_mps")
-
-
-def _sanitised(plot: Any) -> dict[str, Any] | None:
-    """A plot whose non-finite *sigmas* are passed on as invalid (-1) and non-finite SNR as absent, or None.
-
-    Digest §5.6: a NaN, non-positive or absurd sigma is replaced by the configured default and flagged
-    ``sigma_defaulted`` (the core does that for -1); it does not make the plot unusable. The wire format
-    refuses NaN, so this is the one place that turns it into a value the core treats as invalid.
-    """
-    if not isinstance(plot, dict):
-        return None
-    bad = [k for k in _SIGMAS if isinstance(plot.get(k), float) and not math.isfinite(plot[k])]
-    snr = plot.get("snr_db")
-    bad_snr = isinstance(snr, float) and not math.isfinite(snr)
-    if not bad and not bad_snr:
-        return None
-    fixed = dict(plot)
-    for k in bad:
-        fixed[k] = -1.0
-    if bad_snr:
-        fixed["snr_db"] = None
-    return fixed
 
 
 class PclTrackerService(Service):
@@ -156,9 +117,7 @@ class PclTrackerService(Service):
 
     def new_run(self, reason: str) -> list[Output]:
         """A fresh tracker for the next run (track ids keep increasing)."""
-        next_id = self.core.next_track_id
-        self.core = PclTracker(self.config)
-        self.core.next_track_id = next_id
+        self.core = self.core.successor()
         self._dropped_by_scan.clear()
         self.resets += 1
         return list(super().new_run(reason))
@@ -167,25 +126,20 @@ class PclTrackerService(Service):
         self._save_snapshot()
 
     def status_extra(self) -> dict[str, Any]:
-        core = self.core
+        core = self.core.status()
+        metrics = core.pop("core_metrics")
         return {
-            "pair": {"receiver_id": core.receiver_id, "illuminator_id": core.illuminator_id},
+            "pair": {"receiver_id": self.core.receiver_id, "illuminator_id": self.core.illuminator_id},
             "in_key": self.in_key,
             "out_key": self.out_key,
-            "scans_processed": core.metrics["scans"],
+            "scans_processed": core.pop("scans_processed"),
             "reports_published": self.reports_published,
-            "buffered_scans": len(core.buffered_scan_ids),
-            "last_scan_id": core.last_scan_id,
-            "live_tracks": len(core.tracks),
-            "tentative": sum(1 for t in core.tracks.values() if t.status == "TENTATIVE"),
-            "confirmed": sum(1 for t in core.tracks.values() if t.status == "CONFIRMED"),
-            "candidates": len(core.candidates),
-            "next_track_id": core.next_track_id,
+            **core,
             "plots_received": self.plots_received,
             "plots_rejected": sum(self.plots_rejected.values()),
             "plots_rejected_by_reason": dict(self.plots_rejected),
             "scan_events": dict(self.scan_events),
-            "core_metrics": dict(core.metrics),
+            "core_metrics": metrics,
             "last_scan_ms": self.last_scan_ms,
             "max_scan_ms": round(self.max_scan_ms, 3),
             "mean_scan_ms": round(self.total_scan_ms / self.timed_scans, 3) if self.timed_scans else None,
@@ -224,24 +178,7 @@ class PclTrackerService(Service):
         plots = obj.get("plots") if isinstance(obj, dict) else None
         if model is not BistaticScan or not isinstance(plots, list):
             raise error
-        good: list[Any] = []
-        dropped: Counter[str] = Counter()
-        for p in plots:
-            try:
-                BistaticPlot.model_validate(p, strict=True)
-                good.append(p)
-                continue
-            except ValidationError as pexc:
-                err = pexc
-            fixed = _sanitised(p)
-            if fixed is not None:
-                try:
-                    BistaticPlot.model_validate(fixed, strict=True)
-                    good.append(fixed)
-                    continue
-                except ValidationError as pexc:
-                    err = pexc
-            dropped[_plot_reason(err)] += 1
+        good, dropped = salvage_plots(plots)
         if not dropped and good == plots:
             raise error
         scan = codec.validate(BistaticScan, {**obj, "plots": good})

@@ -10,6 +10,11 @@ bistatic measurement box and the paper's Gaussian noise on (r_b, azimuth, elevat
 * ``fixstream/sensor/<receiver_id>/pcl/<illuminator_id>``: one :class:`~schemas.radar.BistaticScan` with
   ``scan_id`` = k + 1 (empty scans too).
 
+A target with ``track`` (:class:`~services.player.simulators.recorded_track.TrackFileParams`) flies a recorded
+trajectory file instead of the straight/turning motion (docs/scenarios.md, "Trajectory files"): its local frame
+must be the receiver's (``track.origin`` at the receiver for a geodetic file); it is born at the track's first
+row and ends (no truth, no plots) after its last one.
+
 Frame: ENU with the receiver at the origin (the scenario's ``frame_id``); azimuth clockwise from north.
 All randomness comes from the simulator's own generator, in the core simulation's order.
 """
@@ -18,12 +23,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
+from dataclasses import dataclass
 from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import AfterValidator, Field, model_validator
 
 from services.player.simulators import NS_PER_S, Event, ScenarioContext, SimParams, TruthState, register
+from services.player.simulators.recorded_track import RecordedTrack, TrackFileParams, load_cached
 from shared import keys
 
 from .service import input_key
@@ -50,11 +57,28 @@ def _increasing(name: str, v: list[float]) -> None:
         raise ValueError(f"{name}: expected [low, high] with low < high, got {v}")
 
 
+#: the fields of a target's synthetic motion, which a recorded track replaces
+MOTION_FIELDS = (
+    "position_m",
+    "velocity_mps",
+    "speed_mps",
+    "course_deg",
+    "climb_rate_mps",
+    "birth_s",
+    "death_s",
+    "turn_rate_dps",
+    "turn_start_s",
+    "turn_end_s",
+)
+
+
 class TargetParams(SimParams):
-    """One target: straight flight, optionally with one horizontal coordinated turn."""
+    """One target: straight flight, optionally with one horizontal coordinated turn, or a recorded track."""
 
     id: KeyChunk = Field(description="platform id: truth on fixstream/truth/<id>")
-    position_m: Vec3 = Field(description="[east, north, up] at birth_s, relative to the receiver, m")
+    position_m: Vec3 | None = Field(
+        default=None, description="[east, north, up] at birth_s, relative to the receiver, m (unless track)"
+    )
     velocity_mps: Vec3 | None = Field(default=None, description="[east, north, up] velocity, m/s (or speed/course)")
     speed_mps: float | None = Field(default=None, ge=0.0, le=3000.0, description="horizontal speed, m/s")
     course_deg: float = Field(default=0.0, ge=-360.0, le=360.0, description="course, deg clockwise from north")
@@ -64,9 +88,20 @@ class TargetParams(SimParams):
     turn_rate_dps: float = Field(default=0.0, ge=-30.0, le=30.0, description="deg/s, + clockwise from above")
     turn_start_s: float = Field(default=0.0, ge=0.0, description="s")
     turn_end_s: float | None = Field(default=None, gt=0.0, description="s (None: turns until death)")
+    track: TrackFileParams | None = Field(
+        default=None, description="a recorded trajectory instead (local frame: the receiver's); born and ends with it"
+    )
 
     @model_validator(mode="after")
     def _check(self) -> TargetParams:
+        if self.track is not None:
+            given = [f for f in MOTION_FIELDS if f in self.model_fields_set]
+            if given:
+                raise ValueError(f"track replaces the target's motion: remove {', '.join(given)}")
+            load_cached(self.track)  # a missing or malformed file is a parameter error
+            return self
+        if self.position_m is None:
+            raise ValueError("give position_m (with velocity_mps or speed_mps) or a track")
         if (self.velocity_mps is None) == (self.speed_mps is None):
             raise ValueError("give exactly one of velocity_mps and speed_mps (with course_deg, climb_rate_mps)")
         if self.death_s is not None and self.death_s <= self.birth_s:
@@ -76,6 +111,9 @@ class TargetParams(SimParams):
         return self
 
     def spec(self) -> TargetSpec:
+        if self.track is not None:
+            return TrackTargetSpec.of(self.id, load_cached(self.track))
+        assert self.position_m is not None
         if self.velocity_mps is not None:
             v = tuple(self.velocity_mps)
         else:
@@ -92,6 +130,34 @@ class TargetParams(SimParams):
             turn_start_s=self.turn_start_s,
             turn_end_s=math.inf if self.turn_end_s is None else self.turn_end_s,
         )
+
+
+@dataclass(frozen=True)
+class TrackTargetSpec(TargetSpec):
+    """A target flying a recorded track: :meth:`state` is the track's (smoothed) position and velocity between
+    its first and last rows (``t_birth_s``, ``t_death_s``), None outside."""
+
+    track: RecordedTrack | None = None
+
+    @classmethod
+    def of(cls, target_id: str, track: RecordedTrack) -> TrackTargetSpec:
+        st = track.states(np.array([track.start_s]))
+        p, v = st.position_m[0], st.velocity_mps[0]
+        return cls(
+            target_id,
+            (float(p[0]), float(p[1]), float(p[2])),
+            (float(v[0]), float(v[1]), float(v[2])),
+            t_birth_s=track.start_s,
+            t_death_s=track.end_s,
+            track=track,
+        )
+
+    def state(self, t: float) -> np.ndarray | None:
+        if t < self.t_birth_s or t > self.t_death_s or self.track is None:
+            return None
+        st = self.track.states(np.array([t]))
+        out: np.ndarray = np.concatenate([st.position_m[0], st.velocity_mps[0]])
+        return out
 
 
 class RandomTargetsParams(SimParams):
@@ -225,6 +291,8 @@ class TargetTruth:
 
     def truth_at(self, stamps_ns: np.ndarray) -> TruthState:
         t = np.asarray(stamps_ns, dtype=np.float64) / NS_PER_S
+        if isinstance(self.spec, TrackTargetSpec) and self.spec.track is not None:
+            return _track_truth(self.spec.track, t)
         states = np.full((t.size, 6), np.nan)
         for i, ti in enumerate(t.tolist()):
             s = self.spec.state(ti)
@@ -241,6 +309,19 @@ class TargetTruth:
             pitch_rad=np.arctan2(v[:, 2], hspeed),
             roll_rad=np.arctan(hspeed * w / G_MPS2),
         )
+
+
+def _track_truth(track: RecordedTrack, t: np.ndarray) -> TruthState:
+    """The track's truth at times t (s), NaN outside its span (the target does not exist there)."""
+    inside = (t >= track.start_s) & (t <= track.end_s)
+    n = t.size
+    pos, vel = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+    heading, pitch, roll = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
+    if inside.any():
+        st = track.states(t[inside])
+        pos[inside], vel[inside] = st.position_m, st.velocity_mps
+        heading[inside], pitch[inside], roll[inside] = st.heading_rad, st.pitch_rad, st.roll_rad
+    return TruthState(pos, vel, heading, pitch, roll)
 
 
 @register("pcl_tracker")

@@ -23,7 +23,7 @@ from shared.filters import kalman
 from shared.filters.covariance import symmetrize
 
 from .drift import DriftStep
-from .geometry import F64, jacobian_d, predict_d
+from .geometry import F64, error_jacobian, follower_units, jacobian_d, predict_d
 
 N_STATE = 5
 
@@ -117,7 +117,7 @@ class EkfShadow:
         H = np.zeros((Hx.shape[0], N_STATE))
         H[:, :2] = Hx
         if G is not None:
-            H[:, 2:] = -np.einsum("mi,mij->mj", Hx, G)
+            H[:, 2:] = error_jacobian(follower_units(self.z[:2], zj, delta, followers), G)
         S = kalman.innovation_covariance(self.Pz, H, R)
         nis = float(e @ np.linalg.solve(S, e))
         if gate is not None and not nis <= gate:

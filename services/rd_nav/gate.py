@@ -29,7 +29,7 @@ from shared.filters.kalman import innovation_covariance
 
 from .config import RdNavConfig
 from .cycle import CycleData, CycleOutcome
-from .geometry import F64, crlb, jacobian_d, predict_d
+from .geometry import F64, crlb, error_jacobian, follower_units, jacobian_d, predict_d
 from .measurement import MeasurementModel
 from .pf import ParticleFilter
 from .rescue import LateArrivalRescue
@@ -79,7 +79,8 @@ class Innovation:
     R: F64  # (M, M)
     e: F64  # (M,)
     H: F64  # (M, 2)
-    Hz: F64 | None  # (M, 5) with the DR error states, else None
+    He: F64 | None  # (M, 3) dh/de of the DR error states (geometry.error_jacobian), else None
+    Hz: F64 | None  # (M, 5) [H, He], else None
     S: F64  # (M, M)
     nis: float  # all M arrivals
 
@@ -106,13 +107,15 @@ class CycleGate:
         zj = cd.zj
         e = cd.d - predict_d(xr, cd.leader, cd.followers, cd.delta, cd.depth, zj)[0]
         H = jacobian_d(xr, cd.leader, cd.followers, cd.delta, cd.depth, zj)[0]
+        He: F64 | None = None
         Hz: F64 | None = None
         if prior.G is not None and prior.C_joint is not None:  # h also depends on the DR errors through delta_j
-            Hz = np.hstack([H, -np.einsum("mi,mij->mj", H, prior.G)])
+            He = error_jacobian(follower_units(x_hat, zj, cd.delta, cd.followers), prior.G)
+            Hz = np.hstack([H, He])
             S = innovation_covariance(prior.C_joint, Hz, R)
         else:
             S = innovation_covariance(prior.P_hat, H, R)
-        return Innovation(R, e, H, Hz, S, float(e @ np.linalg.solve(S, e)))
+        return Innovation(R, e, H, He, Hz, S, float(e @ np.linalg.solve(S, e)))
 
     def check_geometry(self, inn: Innovation, out: CycleOutcome) -> None:
         """DRMS of the single-cycle CRLB; DEGRADED_GEOMETRY if it or cond(H) is too large (M >= 2)."""

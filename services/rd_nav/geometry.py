@@ -62,6 +62,14 @@ def jacobian_d(P: F64, leader: F64, followers: F64, delta: F64, z1: float, zj: F
     return uj[:, :, :2] - u1[:, None, :2]
 
 
+def error_jacobian(U: F64, G: F64) -> F64:
+    """dh/de (M, 3) of the DR error states e. Follower j's motion compensation is delta_j - G_j e and h_j depends
+    on delta_j only through rho_j (the leader's range does not move with it), so dh_j/de = -u_j^T G_j, with u_j
+    (M, 2) the horizontal unit vectors follower j -> receiver (:func:`follower_units`) and G (M, 2, 3) the
+    position error per unit of each state (:mod:`.drift`). The joint Jacobian over [p, e] is ``[H, dh/de]``."""
+    return -np.einsum("mi,mij->mj", U, G)
+
+
 def noise_free_tdoa(
     receiver: F64, leader: F64, followers: F64, tau_s: F64, c_mps: float
 ) -> tuple[F64, F64, F64, F64, float]:

@@ -40,9 +40,8 @@ class PfUpdater:
         cfg, pf, cd = self.cfg, self.pf, prior.cd
         prior_w = pf.w
         Rw = inn.R
-        if prior.G is not None:  # each particle compensates with its mean DR errors; their shared spread adds to R
-            He = -np.einsum("mi,mij->mj", inn.H, prior.G)
-            Rw = inn.R + He @ pf.PE @ He.T
+        if inn.He is not None:  # each particle compensates with its mean DR errors; their shared spread adds to R
+            Rw = inn.R + inn.He @ pf.PE @ inn.He.T
         Rinv = np.linalg.inv(Rw if out.T is None else out.T @ Rw @ out.T.T)
         ok, m2_min = pf.weight(
             cd.d,

@@ -39,6 +39,7 @@ from scipy.signal import lfilter
 
 from schemas import AcousticArrival, Attitude, Depth, Header, Message, NavPacket, SoundSpeed, SpeedLog, Truth
 from schemas.rd_nav import BeaconAssignment, DepartureGrant, VehicleStatus
+from services.player.simulators.recorded_track import RecordedTrack, TrackFileParams, load_cached
 
 from .geometry import F64
 
@@ -75,9 +76,21 @@ class VehicleSpec(BaseModel):
         default=None, description="hover time at each waypoint of a waypoint path (the first: before leaving), s"
     )
     repeat: bool = Field(default=False, description="a waypoint path starts over at its end (a named path always)")
+    track: TrackFileParams | None = Field(
+        default=None, description="a mover's recorded trajectory (scenario frame east/north/up), from t = 0"
+    )
 
     @model_validator(mode="after")
     def _profile(self) -> VehicleSpec:
+        if self.track is not None:
+            extra = [n for n in ("start_node", "path", "speeds_mps", "hold_s", "service_s") if getattr(self, n)]
+            extra += ["route"] if self.route else []
+            extra += ["repeat"] if self.repeat else []
+            if extra:
+                raise ValueError(f"a recorded track is the whole motion of a mover: remove {', '.join(extra)}")
+            if self.track.time_offset_s != 0.0:
+                raise ValueError("track.time_offset_s: a mover moves from t = 0 (the track's first row)")
+            return self
         if self.speeds_mps is None and self.hold_s is None and not self.repeat:
             return self
         if not isinstance(self.path, list):
@@ -383,6 +396,39 @@ class ProfilePath:
         return np.array([self.state(float(x))[:2] for x in np.asarray(t).ravel()]).reshape(-1, 2)
 
 
+class TrackPath:
+    """A recorded trajectory as a mover's path (the interface of :class:`Path`): the track's east/north/up in
+    the scenario frame are NED north = north, east = east, depth = -up. ``state`` gives the heading of the
+    track (recorded, else the course of the velocity) and the horizontal speed, which the DR sensors measure
+    along that heading; times outside the recorded span are clamped to it (the run ends with the track)."""
+
+    def __init__(self, track: RecordedTrack) -> None:
+        self.track = track
+        self.t_start = track.start_s
+
+    @property
+    def t_end(self) -> float:
+        return self.track.end_s
+
+    def _states(self, t: F64) -> tuple[F64, F64, F64, F64, F64]:
+        st = self.track.states(np.clip(np.asarray(t, dtype=np.float64), self.track.start_s, self.track.end_s))
+        p = st.position_m
+        return p[:, 1], p[:, 0], st.heading_rad, st.speed_mps, -p[:, 2]
+
+    def state(self, t: float) -> tuple[float, float, float, float]:
+        """(north, east, heading rad, speed m/s) at true time t."""
+        x, y, h, v, _ = self._states(np.array([t]))
+        return float(x[0]), float(y[0]), float(h[0]), float(v[0])
+
+    def depth(self, t: float) -> float:
+        """Depth (m, + down) at true time t."""
+        return float(self._states(np.array([t]))[4][0])
+
+    def positions(self, t: F64) -> F64:
+        x, y, _, _, _ = self._states(np.atleast_1d(np.asarray(t, dtype=np.float64)))
+        return np.column_stack([x, y])
+
+
 # ============================================================================ engine =====
 @dataclass(frozen=True)
 class Emitted:
@@ -479,7 +525,7 @@ class _Vehicle:
     spec: VehicleSpec
     state: str  # DOCKED, DONE, TRANSIT
     node_id: str | None
-    path: Path | ProfilePath | None = None
+    path: Path | ProfilePath | TrackPath | None = None
     transmitting: bool = False
     route_idx: int = 0
     clock_offset_s: float = 0.0
@@ -623,6 +669,14 @@ class Simulation:
                     self._at(v.spec.service_s, lambda v=v: self._service_done(v))  # type: ignore[misc]
             else:
                 spec = v.spec
+                if spec.track is not None:
+                    v.path = TrackPath(load_cached(spec.track))
+                    route = v.path.positions(np.linspace(v.path.t_start, v.path.t_end, 32))
+                    x, y, _, _ = v.path.state(0.0)
+                    z = v.path.depth(0.0)
+                    self._status(v, "DEPARTED", None, position=[x, y, z], route=[[*p, z] for p in route.tolist()])
+                    self._begin_sensors(v, 0.0)
+                    continue
                 if spec.path is None:
                     raise ValueError(f"{v.auv_id} starts moving without a path")
                 wps = ref_path(spec.path, self.cfg.nodes) if isinstance(spec.path, str) else list(spec.path)
@@ -698,10 +752,15 @@ class Simulation:
         for v in self.vehicles.values():
             if v.state == "TRANSIT" and v.path is not None:
                 x, y, _, _ = v.path.state(self.now)
-                self._status(v, "HEARTBEAT", None, position=[x, y, v.depth_m])
+                self._status(v, "HEARTBEAT", None, position=[x, y, self._depth(v, self.now)])
             else:
                 self._status(v, "HEARTBEAT", v.node_id)
         self._at(self.now + self.cfg.heartbeat_period_s, self._heartbeat)
+
+    @staticmethod
+    def _depth(v: _Vehicle, t: float) -> float:
+        """A moving vehicle's true depth at time t: its recorded track's, else the transit depth."""
+        return v.path.depth(t) if isinstance(v.path, TrackPath) else v.depth_m
 
     # ----- navigation sensors ----------------------------------------------------------------
     def _begin_sensors(self, v: _Vehicle, t: float) -> None:
@@ -743,7 +802,7 @@ class Simulation:
             return
         n = v.normals
         assert n is not None
-        z = v.depth_m + self.cfg.depth_sigma_m * n()
+        z = self._depth(v, self.now) + self.cfg.depth_sigma_m * n()
         self._emit(self.now, v.auv_id, "depth", Depth(header=self._header(self.now, f"{v.auv_id}/body"), depth_m=z))
         self._at(self.now + self.cfg.depth_period_s, lambda: self._depth_tick(v, seq))
 
@@ -771,7 +830,7 @@ class Simulation:
         if moving:
             assert v.path is not None
             x, y, heading, speed = v.path.state(t)
-            z = v.depth_m
+            z = self._depth(v, t)
         else:
             x, y = self.truth_xy(v.auv_id, t)
             z = float(self.true_nodes[v.node_id or ""][2])
@@ -870,7 +929,7 @@ class Simulation:
             t = t_tx
             for _ in range(4):  # moving receiver: solve |X(t) - src| = c (t - t_tx)
                 x, y, _, _ = v.path.state(t)
-                rho = math.sqrt((x - src[0]) ** 2 + (y - src[1]) ** 2 + (v.depth_m - src[2]) ** 2)
+                rho = math.sqrt((x - src[0]) ** 2 + (y - src[1]) ** 2 + (self._depth(v, t) - src[2]) ** 2)
                 t = t_tx + rho / c
             if cfg.multipath_prob > 0 and float(self.rng_loss.random()) < cfg.multipath_prob:
                 t += float(self.rng_loss.uniform(*cfg.multipath_delay_s))

@@ -32,6 +32,12 @@ Keys (``<g>`` = ``group``, ``<v>`` = a vehicle id):
   frame (the base-station frame: east = NED y, north = NED x, up = -depth), velocity, ``attitude_rad``
   ``[heading, 0, 0]``; ``extra``: ``depth_m``, ``moving`` (1/0).
 
+A mover may fly a recorded trajectory file instead of a path (``vehicles[].track``,
+:class:`~services.player.simulators.recorded_track.TrackFileParams`; docs/scenarios.md, "Trajectory files"): the
+track's east/north/up in the scenario frame from t = 0, its depth (-up) for the depth sensor and the acoustic
+ranges, its heading (recorded, else the course) and horizontal speed for the DVL and attitude sensors. The run
+then ends with the shortest track (its last row), the docked beacons staying where they are.
+
 Stamps: the data clock of the simulation = scenario time (ns since the start). Messages carry the simulation's
 frame ids (``base_ned`` for positions in NED, ``<v>/body`` for body-frame sensors); the ``Truth`` the scenario's.
 """
@@ -52,6 +58,7 @@ from services.coordinator.config import CoordinatorConfig
 from services.coordinator.protocol import CoordinatorProtocol, config_digest
 from services.coordinator.service import reply_key, uplink_key
 from services.player.simulators import Event, Exchange, ExchangeSpec, ScenarioContext, SimParams, register
+from services.player.simulators.recorded_track import TrackFileParams, load_cached
 from shared import keys
 
 from .simulation import REF_BEACONS, REF_MOVER, REF_NODES, Emitted, ScenarioConfig, Simulation, VehicleSpec, fleet
@@ -111,11 +118,22 @@ class VehicleParams(SimParams):
         default=None, max_length=4096, description="hover time at each waypoint (the first: before leaving), s"
     )
     repeat: bool = Field(default=False, description="a waypoint path starts over at its end")
+    track: TrackFileParams | None = Field(
+        default=None, description="a mover's recorded trajectory instead of a path (from t = 0; the run ends with it)"
+    )
 
     @model_validator(mode="after")
     def _where(self) -> VehicleParams:
-        if (self.node is None) == (self.path is None):
-            raise ValueError("give exactly one of node (docked at the start) and path (moving at the start)")
+        if sum(x is not None for x in (self.node, self.path, self.track)) != 1:
+            raise ValueError("give exactly one of node (docked at the start), path or track (moving at the start)")
+        if self.track is not None:
+            if self.route or self.service_s is not None or self.speeds_mps is not None or self.hold_s is not None:
+                raise ValueError("a recorded track is the whole motion: no route, service_s, speeds_mps or hold_s")
+            if self.repeat:
+                raise ValueError("a recorded track is not repeated")
+            if self.track.time_offset_s != 0.0:
+                raise ValueError("track.time_offset_s: a mover moves from t = 0 (the track's first row)")
+            load_cached(self.track)  # a missing or malformed file is a parameter error
         if isinstance(self.path, list) and len(self.path) < 2:
             raise ValueError("a waypoint path needs at least two points")
         profiled = self.speeds_mps is not None or self.hold_s is not None or self.repeat
@@ -241,6 +259,11 @@ class RdGroupParams(SimParams):
                 raise ValueError("fixed_assignment: leader and followers must be distinct")
         return self
 
+    def end_s(self, duration_s: float) -> float:
+        """The run's end (s): ``duration_s``, or the last row of the shortest recorded track if earlier."""
+        ends = [load_cached(v.track).end_s for v in self.vehicles or [] if v.track is not None]
+        return min([duration_s, *ends])
+
     def assignment_spec(self) -> FixedAssignment:
         if self.fixed_assignment is not None:
             return self.fixed_assignment
@@ -272,6 +295,7 @@ class RdGroupParams(SimParams):
                     speeds_mps=v.speeds_mps,
                     hold_s=v.hold_s,
                     repeat=v.repeat,
+                    track=v.track,
                 )
                 for v in self.vehicles
             ]
@@ -312,7 +336,9 @@ class RdGroup:
         if not isinstance(seq, np.random.SeedSequence):
             raise TypeError("rd_group needs a Generator built from a numpy SeedSequence")
         self._seed = (seq.entropy, seq.spawn_key)
-        self.cfg = params.scenario_config(context.duration_s)
+        #: the run's end, s: the scenario's, or the end of the shortest recorded track
+        self.end_s = params.end_s(context.duration_s)
+        self.cfg = params.scenario_config(self.end_s)
         self.cfg = self.cfg.model_copy(update={"truth_frame_id": context.frame_id})
         self.group = params.group
         self.coordinator_config = CoordinatorConfig.model_validate(params.coordinator_config)
@@ -348,7 +374,7 @@ class RdGroup:
             sim.feed(a)
             first += self._downlink(a, 0)
         pending = first
-        end = self.context.duration_s
+        end = self.end_s
         k = 0
         while True:
             t = min(k * p.exchange_period_s, end)

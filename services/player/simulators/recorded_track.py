@@ -53,6 +53,7 @@ unchanged; the simulator only has to stop at ``trajectory.end_s``.
 from __future__ import annotations
 
 import csv
+import functools
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -310,6 +311,11 @@ class RecordedTrack:
         return float(self.t_rows[0])
 
     @property
+    def has_attitude(self) -> bool:
+        """True if the attitude comes from recorded columns (else it is derived from velocity and acceleration)."""
+        return self._att is not None
+
+    @property
     def end_s(self) -> float:
         return float(self.t_rows[-1])
 
@@ -365,6 +371,27 @@ class RecordedTrack:
         if self.frame is None:
             raise ValueError(f"{self.source}: a local track without an origin has no geodetic position")
         return self.frame.to_geodetic(self.states(t_s).position_m)
+
+
+@functools.lru_cache(maxsize=32)
+def load_cached(params: TrackFileParams) -> RecordedTrack:
+    """:meth:`RecordedTrack.load`, cached: a parameter validator, the simulator and every Monte-Carlo run of a
+    scenario share one fitted track (it is read-only). A missing or unreadable file raises ValueError (in a
+    parameter validator: a validation error that names the file)."""
+    try:
+        return RecordedTrack.load(params)
+    except OSError as exc:
+        raise ValueError(str(exc)) from None
+
+
+def epoch_times(track: RecordedTrack, period_s: float, first_s: float | None = None) -> F64:
+    """Times ``first + k * period`` (default first: the track's start) inside the recorded span, s."""
+    t0 = track.start_s if first_s is None else first_s
+    if t0 > track.end_s:
+        return np.zeros(0)
+    n = math.floor((track.end_s - t0) / period_s + 1e-9) + 1
+    out: F64 = t0 + period_s * np.arange(n, dtype=np.float64)
+    return out[out <= track.end_s + 1e-9 * max(1.0, abs(track.end_s))]
 
 
 def write_track_csv(path: str | Path, t_s: F64, columns: dict[str, F64], comment: str = "", precision: int = 9) -> Path:
