@@ -66,7 +66,7 @@ def evaluate(sim: SimRun, outs: list[Any], cfg: LblNavConfig, preset: str, seed:
     if launch is None or dec is None:
         return out
     truth0 = (sim.x_m[i0], sim.y_m[i0])
-    true_id = min(launch.hypotheses, key=lambda h: math.dist(h.position_m[:2], truth0)).hypothesis_id
+    true_id = min(launch.hypotheses, key=lambda h: math.dist(h.estimate.mean[:2], truth0)).hypothesis_id
     k = sim.index_of(dec.header.stamp_ns)
     t_dec = (dec.header.stamp_ns - t0_ns) / NS
     sign = 1.0 if true_id == 1 else -1.0  # ratios as true over mirror
@@ -89,11 +89,11 @@ def evaluate(sim: SimRun, outs: list[Any], cfg: LblNavConfig, preset: str, seed:
     rate = np.degrees(np.abs(np.diff(sim.heading_true_rad, prepend=sim.heading_true_rad[0]))) / sim.spec.dt_s
     nees_s, nees_t = [], []
     for f in fixes:
-        if not f.valid or f.position_m is None or f.position_cov_m2 is None:
+        if not f.valid or f.estimate is None:
             continue
         j = sim.index_of(f.header.stamp_ns)
-        e = np.array(f.position_m[:2]) - (sim.x_m[j], sim.y_m[j])
-        P = np.array(f.position_cov_m2)[:2, :2]
+        e = np.array(f.estimate.mean[:2]) - (sim.x_m[j], sim.y_m[j])
+        P = np.array(f.estimate.covariance)[:2, :2]
         v = float(e @ np.linalg.solve(P, e))
         (nees_t if rate[j] > TURN_DPS else nees_s).append(v)
     out["nees_straight"] = [float(np.mean(nees_s)), len(nees_s)] if nees_s else None

@@ -158,7 +158,7 @@ def score_run(flight, msgs, cfg: TerrainNavConfig, t: Tally, turn: bool) -> None
                 errs.append(e)
                 first_fix = ts if first_fix is None else first_fix
                 err = np.array([m.dx_m - d["dx"], m.dz_m - d["dz"]])
-                nees = float(err @ np.linalg.solve(np.array(m.cov_xz_m2), err))
+                nees = float(err @ np.linalg.solve(np.array(m.estimate.covariance), err))
                 win = nav.window.measq
                 if turn:
                     w = list(win)
@@ -167,7 +167,8 @@ def score_run(flight, msgs, cfg: TerrainNavConfig, t: Tally, turn: bool) -> None
                 else:
                     turning = False
                 (t.nees_turn if turning else t.nees_straight).append(nees)
-                if abs(m.dh_m - d["dh"]) <= 3.0 * math.sqrt(m.cov_vert[1][1]):
+                dh = m.vertical.index("dh")
+                if abs(m.vertical.mean[dh] - d["dh"]) <= 3.0 * math.sqrt(m.vertical.covariance[dh][dh]):
                     t.vert_in += 1
             elif getattr(m, "c1_enough_data", False) and m.state != "RESET":
                 post = exact_posterior(list(nav.window.measq), nav.map, cfg, nav.D1)

@@ -3,6 +3,7 @@
 from .acoustic import AcousticArrival, Beacon, BeaconRange, BeaconTable, NavPacket
 from .base import MODELS, Covariance, Header, Message, StrictModel, Vec2, Vec3
 from .diagnostics import Diagnostic
+from .estimate import GaussianEstimate, Layout
 from .navigation import (
     Attitude,
     BaroAltitude,
@@ -48,10 +49,12 @@ __all__ = [
     "Depth",
     "Diagnostic",
     "Fix",
+    "GaussianEstimate",
     "Header",
     "Heading",
     "Hypothesis",
     "InsSample",
+    "Layout",
     "Message",
     "NavPacket",
     "NavReset",

@@ -7,11 +7,12 @@ while ``LINEARISATION_INVALID`` is flagged they are capped and must not be trust
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pydantic import Field, model_validator
 
 from .base import Covariance, Message, StrictModel
+from .estimate import GaussianEstimate, Layout, block_field, check_blocks
 
 AttitudeStatus = Literal["INIT", "CONVERGING", "VALID", "COASTING", "RESET"]
 
@@ -53,8 +54,17 @@ class RawAttitudeAngles(StrictModel):
     aspect_total_deg: float | None = Field(default=None, ge=0.0, le=180.0)
 
 
+#: the published 9-state of eq. (3) in the site's frame E (x north, y up, z east)
+CA_STATE = Layout(
+    ("x", "vx", "ax", "y", "vy", "ay", "z", "vz", "az"),
+    ("m", "m/s", "m/s^2", "m", "m/s", "m/s^2", "m", "m/s", "m/s^2"),
+)
+
+
 class AttitudeEstimate(Message):
     """Heading, pitch and roll of one radar target in the earth frame E and the line-of-sight frame (§5.3)."""
+
+    schema_version: ClassVar[int] = 2
 
     site_id: str = Field(min_length=1, max_length=64)
     target_id: str = Field(min_length=1, max_length=64)
@@ -98,10 +108,7 @@ class AttitudeEstimate(Message):
     el_deg: float | None = Field(default=None, ge=-90.0, le=90.0, description="elevation")
 
     # filtered Cartesian state in E
-    state: list[float] | None = Field(
-        default=None, description="[x Vx ax y Vy ay z Vz az] (x north, y up, z east), m, m/s, m/s^2"
-    )
-    state_cov: Covariance | None = Field(default=None, description="9x9 covariance of state, SI units")
+    estimate: GaussianEstimate | None = block_field(CA_STATE, "the filtered state in the site's frame", optional=True)
     speed_mps: float | None = Field(default=None, ge=0.0)
     turn_rate_dps: float | None = Field(default=None, description="d(psi)/dt, deg/s, + clockwise")
     load_factor: float | None = Field(default=None, description="normal load factor n, dimensionless")
@@ -117,10 +124,7 @@ class AttitudeEstimate(Message):
 
     @model_validator(mode="after")
     def _shapes(self) -> AttitudeEstimate:
-        if self.state is not None and len(self.state) != 9:
-            raise ValueError("state must have 9 components")
-        if self.state_cov is not None and len(self.state_cov) != 9:
-            raise ValueError("state_cov must be 9x9")
+        check_blocks(self)
         if self.angle_cov_los_deg2 is not None and len(self.angle_cov_los_deg2) != 3:
             raise ValueError("angle_cov_los_deg2 must be 3x3")
         return self

@@ -1,21 +1,23 @@
 """Outputs of the LBL estimator with no prior position and sparse beacons (digest 000, section 5.2).
 
 ``LblFix`` is published once per DR epoch. While two hypotheses are alive (status ``LAUNCH`` or
-``AMBIGUOUS``) it carries no position (``valid`` is False, ``position_m`` is None) and lists both
+``AMBIGUOUS``) it carries no position (``valid`` is False, ``estimate`` is None) and lists both
 hypotheses with their posterior probabilities; it never presents one of them as the fix.
 ``LblEvent`` reports launches, decisions, merges, buffer overflows, rejections and resets.
 
 Frame: local horizontal frame with geographic axes, x = East, y = North, and depth positive down;
-``position_m`` is ``[x_east_m, y_north_m, depth_m]``.
+``estimate`` (a :class:`~schemas.estimate.GaussianEstimate`) has the components ``x, y, z`` =
+``[x_east_m, y_north_m, depth_m]``; ``state`` is the filter's 6-state ``x, y, dc, dK, dU_north, dU_east``.
 """
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pydantic import Field, model_validator
 
-from .base import Covariance, Message, Vec2, Vec3
+from .base import Message, Vec2
+from .estimate import POSITION, GaussianEstimate, Layout, block_field, check_blocks
 from .outputs import Hypothesis
 
 LblStatus = Literal[
@@ -43,15 +45,23 @@ LblEventKind = Literal[
 ]
 
 
+#: the filter state of ``LblFix.state`` (services/lbl_nav/models.py: IX .. IUE): position x (east), y (north);
+#: sound-speed error dc; heading error dK (add to the measured heading); current errors dU_north, dU_east
+LBL_STATE = Layout(("x", "y", "dc", "dK", "dU_north", "dU_east"), ("m", "m", "m/s", "rad", "m/s", "m/s"))
+
+
 class LblFix(Message):
     """Per-epoch output of the LBL estimator: fix (once single-hypothesis) or the live hypotheses."""
+
+    schema_version: ClassVar[int] = 2
 
     platform: str = Field(min_length=1, max_length=64)
     estimator: str = Field(default="lbl_nav", min_length=1, max_length=64)
     status: LblStatus
-    valid: bool = Field(description="True only when one hypothesis remains: position_m may be used as a fix")
-    position_m: Vec3 | None = Field(default=None, description="[x_east_m, y_north_m, depth_m]; None unless valid")
-    position_cov_m2: Covariance | None = Field(default=None, description="3x3, m^2; None unless valid")
+    valid: bool = Field(description="True only when one hypothesis remains: estimate may be used as a fix")
+    estimate: GaussianEstimate | None = block_field(
+        POSITION, "position x (east), y (north), z (depth); None unless valid", optional=True
+    )
     hypotheses: list[Hypothesis] = Field(
         default_factory=list, max_length=2, description="every live hypothesis (id 1 or 2), probability from ratio"
     )
@@ -67,17 +77,11 @@ class LblFix(Message):
     processed_buffered: int = Field(default=0, ge=0, description="buffered epochs processed so far")
     saved_progress: float = Field(default=0.0, ge=0.0, le=1.0, description="processed / N (1 if N = 0)")
     catching_up: bool = Field(default=False, description="True while buffered epochs remain (s > -N)")
-    dc_mps: float | None = Field(default=None, description="sound-speed error estimate, m/s")
-    dK_rad: float | None = Field(default=None, description="heading error estimate (add to measured heading), rad")  # noqa: N815
-    dU_north_mps: float | None = Field(default=None, description="current error estimate, north, m/s")  # noqa: N815
-    dU_east_mps: float | None = Field(default=None, description="current error estimate, east, m/s")  # noqa: N815
+    state: GaussianEstimate | None = block_field(LBL_STATE, "the filter state; None unless valid", optional=True)
     sigma_dc_mps: float | None = Field(default=None, ge=0.0)
     sigma_dK_rad: float | None = Field(default=None, ge=0.0)  # noqa: N815
     sigma_dU_north_mps: float | None = Field(default=None, ge=0.0)  # noqa: N815
     sigma_dU_east_mps: float | None = Field(default=None, ge=0.0)  # noqa: N815
-    state_cov: Covariance | None = Field(
-        default=None, description="6x6 covariance of [x_m, y_m, dc_mps, dK_rad, dUN_mps, dUE_mps], SI units"
-    )
     ranges_used: int = Field(default=0, ge=0, description="current-epoch ranges used in the update")
     ranges_rejected: int = Field(default=0, ge=0, description="current-epoch ranges rejected by the gate")
     buffer_dropped: int = Field(default=0, ge=0, description="buffered epochs dropped (overflow, gaps) so far")
@@ -85,14 +89,11 @@ class LblFix(Message):
 
     @model_validator(mode="after")
     def _consistent(self) -> LblFix:
-        if self.valid and (self.position_m is None or self.position_cov_m2 is None):
-            raise ValueError("a valid LblFix needs position_m and position_cov_m2")
-        if not self.valid and self.position_m is not None:
+        if self.valid and self.estimate is None:
+            raise ValueError("a valid LblFix needs its estimate")
+        if not self.valid and self.estimate is not None:
             raise ValueError("an invalid LblFix must not carry a position (publish hypotheses instead)")
-        if self.position_cov_m2 is not None and len(self.position_cov_m2) != 3:
-            raise ValueError("position_cov_m2 must be 3x3")
-        if self.state_cov is not None and len(self.state_cov) != 6:
-            raise ValueError("state_cov must be 6x6")
+        check_blocks(self)
         if self.processed_buffered > self.buffered_epochs:
             raise ValueError("processed_buffered exceeds buffered_epochs")
         return self

@@ -2,20 +2,26 @@
 
 The inputs are :class:`schemas.radar.BistaticScan` and :class:`schemas.radar.BistaticConfigUpdate`.
 Cartesian quantities are in the receiver-centred ENU frame named in ``header.frame_id`` (X east, Y north,
-Z up); bistatic quantities are [r_b m, azimuth deg clockwise from north, elevation deg, v_b m/s].
+Z up); bistatic quantities are [r_b m, azimuth deg clockwise from north, elevation deg, v_b m/s]. Each track's
+state and its bistatic image are :class:`~schemas.estimate.GaussianEstimate` blocks.
 """
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 from pydantic import Field, model_validator
 
-from .base import Covariance, Message, StrictModel
+from .base import Message, StrictModel
+from .estimate import CV_STATE, GaussianEstimate, Layout, block_field, check_blocks
 
 TrackStatus = Literal["TENTATIVE", "CONFIRMED", "DROPPED"]
 DropReason = Literal["K_misses", "MN_failed", "reset", "capacity"]
 Probability = Annotated[float, Field(ge=0.0, le=1.0)]
+
+
+#: a track's bistatic image (``PclTrackReport.bistatic``): z_b with the angles in degrees
+BISTATIC = Layout(("r_b", "az", "el", "v_b"), ("m", "deg", "deg", "m/s"))
 
 
 class PclTrackReport(StrictModel):
@@ -25,14 +31,10 @@ class PclTrackReport(StrictModel):
     status: TrackStatus
     scan_id: int = Field(ge=0)
     t_s: float = Field(ge=0.0, description="scan time, s on the scenario clock (= header stamp)")
-    state_enu: list[float] = Field(
-        min_length=6, max_length=6, description="x_a(k|k) = [x, y, z m, v_x, v_y, v_z m/s] (prediction if coasted)"
+    estimate: GaussianEstimate = block_field(CV_STATE, "x_a(k|k), P_a(k|k) in the ENU frame (prediction if coasted)")
+    bistatic: GaussianEstimate = block_field(
+        BISTATIC, "UT image of the estimate through h_b (frame bistatic/<rx>/<tx>)"
     )
-    cov_enu: Covariance = Field(description="P_a(k|k), 6x6, m^2, m^2/s, m^2/s^2")
-    bistatic: list[float] = Field(
-        min_length=4, max_length=4, description="UT image of x_a(k|k) through h_b: [r_b m, az deg, el deg, v_b m/s]"
-    )
-    bistatic_cov: Covariance = Field(description="4x4 covariance of `bistatic` in (m, deg, deg, m/s) units")
     associated_plot_id: str | None = Field(default=None, max_length=64, description="None: coasted this scan")
     nis: float | None = Field(default=None, ge=0.0, description="d^2 of the associated plot in the 4-D gate")
     n_plots_in_gate: int = Field(default=0, ge=0, description="plots of this scan inside the track's gate")
@@ -57,10 +59,7 @@ class PclTrackReport(StrictModel):
 
     @model_validator(mode="after")
     def _shapes(self) -> PclTrackReport:
-        if len(self.cov_enu) != 6:
-            raise ValueError("cov_enu must be 6x6")
-        if len(self.bistatic_cov) != 4:
-            raise ValueError("bistatic_cov must be 4x4")
+        check_blocks(self)
         if (self.status == "DROPPED") != (self.drop_reason is not None):
             raise ValueError("drop_reason is set exactly when status is DROPPED")
         return self
@@ -68,6 +67,8 @@ class PclTrackReport(StrictModel):
 
 class PclScanReport(Message):
     """Everything the PCL tracker knows after one scan of one receiver–illuminator pair."""
+
+    schema_version: ClassVar[int] = 2
 
     receiver_id: str = Field(min_length=1, max_length=64)
     illuminator_id: str = Field(min_length=1, max_length=64)

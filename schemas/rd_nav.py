@@ -7,11 +7,12 @@ clock on which the vehicle's navigation sensors are stamped (architecture rule 2
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pydantic import Field, model_validator
 
-from .base import Covariance, Message, StrictModel, Vec2, Vec3
+from .base import Message, StrictModel, Vec2, Vec3
+from .estimate import HORIZONTAL, GaussianEstimate, block_field, check_blocks
 
 #: navigation status words of a fix (digest §7.2 ``NavFix.status``)
 NavStatus = Literal["INIT", "TRACKING", "DR_ONLY", "DEGRADED_GEOMETRY", "REJECTED", "REINIT", "LOST"]
@@ -60,12 +61,16 @@ class RdNavFix(Message):
     the same estimate carried forward by DR to the latest sensor time (covariance grown by q).
     """
 
+    schema_version: ClassVar[int] = 2
+
     auv_id: str = Field(min_length=1, max_length=64)
     estimator: Literal["PF", "EKF"]
     kind: Literal["CYCLE", "PROPAGATED"]
     t_local_s: float | None = Field(default=None, description="epoch on the receiver clock (t1 of the cycle), s")
-    position_ned_m: Vec3 = Field(description="x north, y east, z depth (pressure), m")
-    cov_xy_m2: Covariance = Field(description="2x2 horizontal covariance Q_k (Eq. 7), m^2")
+    estimate: GaussianEstimate = block_field(
+        HORIZONTAL, "horizontal position x (north), y (east), covariance Q_k (Eq. 7)"
+    )
+    depth_m: float = Field(description="z, depth from the pressure sensor (not estimated), m")
     status: NavStatus
     valid: bool = Field(description="True if the position may be used as a fix")
     cycle_status: CycleStatus = Field(description="fate of the cycle this fix reports on")
@@ -84,8 +89,7 @@ class RdNavFix(Message):
 
     @model_validator(mode="after")
     def _shapes(self) -> RdNavFix:
-        if len(self.cov_xy_m2) != 2:
-            raise ValueError("cov_xy_m2 must be 2x2")
+        check_blocks(self)
         return self
 
 

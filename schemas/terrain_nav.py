@@ -11,11 +11,12 @@ sign convention ``true = indicated + correction``. Hypothesis offsets are in map
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pydantic import Field, model_validator
 
-from .base import Covariance, Message
+from .base import Message
+from .estimate import GaussianEstimate, Layout, block_field, check_blocks
 
 #: the verdict's state word (digest §5.3): why a fix was or was not issued, or a stream status
 VerdictState = Literal[
@@ -60,22 +61,26 @@ class TerrainVerdict(Message):
     detail: str = Field(default="", max_length=256, description="free text for status verdicts")
 
 
+#: the fix's horizontal block: corrected position along the map's axes x (longitudinal) and z (transverse)
+MAP_HORIZONTAL = Layout(("x", "z"), ("m", "m"))
+#: the vertical channel's block: corrections of the vertical speed and of the altitude (h_true = h_ins + dh)
+VERTICAL_CORRECTION = Layout(("dvh", "dh"), ("m/s", "m"))
+
+
 class TerrainFix(Message):
     """A reliable terrain fix: horizontal correction with covariance, and vertical-channel corrections.
 
     Valid at ``header.stamp_ns`` = time of the newest cell measurement in the window (``t_fix``).
     """
 
+    schema_version: ClassVar[int] = 2
+
     dx_m: float = Field(description="longitudinal correction: x_true = x_ins + dx, m")
     dz_m: float = Field(description="transverse correction: z_true = z_ins + dz, m")
-    x_corr_m: float = Field(description="corrected longitudinal position at t_fix, m")
-    z_corr_m: float = Field(description="corrected transverse position at t_fix, m")
-    cov_xz_m2: Covariance = Field(description="2x2 covariance of (x_corr, z_corr), m^2")
-    dh_m: float = Field(description="altitude correction of the winning filter: h_true = h_ins + dh, m")
-    dvh_mps: float = Field(description="vertical-speed correction of the winning filter, m/s")
+    estimate: GaussianEstimate = block_field(MAP_HORIZONTAL, "corrected horizontal position at t_fix")
+    vertical: GaussianEstimate = block_field(VERTICAL_CORRECTION, "vertical corrections of the winning filter")
     h_corr_m: float = Field(description="corrected altitude at t_fix, m")
     vh_corr_mps: float | None = Field(default=None, description="corrected vertical speed (if the INS gives one), m/s")
-    cov_vert: Covariance = Field(description="2x2 covariance of (dvh, dh): [[m^2/s^2, m^2/s], [m^2/s, m^2]]")
     refined: bool = Field(description="the sub-cell refining search was accepted")
     cov_degenerate: bool = Field(description="the conservative fallback covariance was used (digest §2.6)")
     i_star: int = Field(description="longitudinal hypothesis offset of the minimum, cells")
@@ -84,10 +89,7 @@ class TerrainFix(Message):
 
     @model_validator(mode="after")
     def _shapes(self) -> TerrainFix:
-        if len(self.cov_xz_m2) != 2:
-            raise ValueError("cov_xz_m2 must be 2x2")
-        if len(self.cov_vert) != 2:
-            raise ValueError("cov_vert must be 2x2")
+        check_blocks(self)
         if not self.verdict.valid:
             raise ValueError("a TerrainFix needs a valid verdict")
         return self

@@ -34,10 +34,21 @@ from schemas import (
     TrackEnd,
     Truth,
 )
+from schemas.estimate import GaussianEstimate
 
 H = Header(stamp_ns=1_700_000_000_123_456_789, frame_id="local_enu", source="test/1", seq=42)
 COV3 = [[4.0, 0.5, 0.0], [0.5, 9.0, 0.0], [0.0, 0.0, 0.25]]
 COV6 = [[float(i == j) * (1.0 + i) for j in range(6)] for i in range(6)]
+POS3 = GaussianEstimate(
+    frame="local_enu", components=["x", "y", "z"], units=["m", "m", "m"], mean=[10.0, 20.0, 30.0], covariance=COV3
+)
+STATE6 = GaussianEstimate(
+    frame="local_enu",
+    components=["x", "y", "z", "vx", "vy", "vz"],
+    units=["m", "m", "m", "m/s", "m/s", "m/s"],
+    mean=[1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
+    covariance=COV6,
+)
 PACKET = NavPacket(
     sender_id="auv2",
     kind="FOLLOWER",
@@ -119,17 +130,15 @@ EXAMPLES: dict[str, Message] = {
         estimator="lbl",
         status="RESOLVED",
         valid=True,
-        position_m=[10.0, 20.0, 30.0],
-        position_cov_m2=COV3,
-        hypotheses=[Hypothesis(hypothesis_id=1, position_m=[10.0, 20.0, 30.0], position_cov_m2=COV3, probability=0.99)],
+        estimate=POS3,
+        hypotheses=[Hypothesis(hypothesis_id=1, estimate=POS3, probability=0.99)],
     ),
     "Track": Track(
         header=H,
         tracker="pcl",
         track_id=3,
         status="CONFIRMED",
-        state=[1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
-        covariance=COV6,
+        estimate=STATE6,
     ),
     "Diagnostic": Diagnostic(
         header=H,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from schemas import Header, Message
 from schemas.attitude import AttitudeEstimate, RawAttitudeAngles
+from schemas.estimate import GaussianEstimate
 
 H = Header(stamp_ns=1_700_000_000_123_456_789, frame_id="radar_nue/r1", source="attitude/r1", seq=7)
 P9 = [[float(i == j) * (100.0 if i % 3 == 0 else 1.0 if i % 3 == 1 else 0.01) for j in range(9)] for i in range(9)]
@@ -43,8 +44,13 @@ EXAMPLES: dict[str, Message] = {
         range_m=63_970.0,
         az_deg=72.39,
         el_deg=4.48,
-        state=[19295.6, -153.2, 0.01, 5000.0, 0.1, 0.0, 60782.7, -128.6, -0.02],
-        state_cov=P9,
+        estimate=GaussianEstimate(
+            frame=H.frame_id,
+            components=["x", "vx", "ax", "y", "vy", "ay", "z", "vz", "az"],
+            units=["m", "m/s", "m/s^2", "m", "m/s", "m/s^2", "m", "m/s", "m/s^2"],
+            mean=[19295.6, -153.2, 0.01, 5000.0, 0.1, 0.0, 60782.7, -128.6, -0.02],
+            covariance=P9,
+        ),
         speed_mps=200.0,
         turn_rate_dps=0.01,
         load_factor=1.0,

@@ -3,21 +3,31 @@
 from __future__ import annotations
 
 from schemas import Header, Message
+from schemas.estimate import GaussianEstimate
 from schemas.pcl_tracker import PclScanReport, PclTrackReport
 
 H = Header(stamp_ns=1_700_000_003_000_000_000, frame_id="pcl_enu", source="pcl_tracker/rx1", seq=7)
 COV6 = [[float(i == j) * (100.0 if i < 3 else 4.0) for j in range(6)] for i in range(6)]
 COV4 = [[40_000.0, 0.0, 0.0, 0.0], [0.0, 0.25, 0.0, 0.0], [0.0, 0.0, 0.25, 0.0], [0.0, 0.0, 0.0, 25.0]]
 
+
+def enu(mean: list[float]) -> GaussianEstimate:
+    comps, units = ["x", "y", "z", "vx", "vy", "vz"], ["m", "m", "m", "m/s", "m/s", "m/s"]
+    return GaussianEstimate(frame="pcl_enu", components=comps, units=units, mean=mean, covariance=COV6)
+
+
+def bistatic(mean: list[float]) -> GaussianEstimate:
+    comps, units = ["r_b", "az", "el", "v_b"], ["m", "deg", "deg", "m/s"]
+    return GaussianEstimate(frame="bistatic/rx1/tx-fm-98.1", components=comps, units=units, mean=mean, covariance=COV4)
+
+
 LIVE = PclTrackReport(
     track_id=3,
     status="CONFIRMED",
     scan_id=12,
     t_s=33.0,
-    state_enu=[3178.2, 3548.5, 1000.0, -194.06, -48.38, 0.0],
-    cov_enu=COV6,
-    bistatic=[2889.4, 41.85, 11.86, -35.23],
-    bistatic_cov=COV4,
+    estimate=enu([3178.2, 3548.5, 1000.0, -194.06, -48.38, 0.0]),
+    bistatic=bistatic([2889.4, 41.85, 11.86, -35.23]),
     associated_plot_id="p0001",
     nis=3.2,
     n_plots_in_gate=1,
@@ -33,10 +43,8 @@ DROPPED = PclTrackReport(
     status="DROPPED",
     scan_id=12,
     t_s=33.0,
-    state_enu=[10_000.0, -2_000.0, 500.0, 100.0, 0.0, 0.0],
-    cov_enu=COV6,
-    bistatic=[5000.0, 101.3, 2.8, 150.0],
-    bistatic_cov=COV4,
+    estimate=enu([10_000.0, -2_000.0, 500.0, 100.0, 0.0, 0.0]),
+    bistatic=bistatic([5000.0, 101.3, 2.8, 150.0]),
     hits=2,
     consecutive_misses=3,
     age_scans=3,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from schemas import Header, Message
+from schemas.estimate import GaussianEstimate
 from schemas.rd_nav import (
     BeaconAssignment,
     CoordinatorReply,
@@ -63,8 +64,14 @@ EXAMPLES: dict[str, Message] = {
         estimator="PF",
         kind="CYCLE",
         t_local_s=512.25,
-        position_ned_m=[827.3, 1500.5, 80.0],
-        cov_xy_m2=[[0.22, 0.01], [0.01, 0.06]],
+        estimate=GaussianEstimate(
+            frame="base_ned",
+            components=["x", "y"],
+            units=["m", "m"],
+            mean=[827.3, 1500.5],
+            covariance=[[0.22, 0.01], [0.01, 0.06]],
+        ),
+        depth_m=80.0,
         status="TRACKING",
         valid=True,
         cycle_status="USED",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from schemas import Header, Message
+from schemas.estimate import GaussianEstimate
 from schemas.terrain_nav import TerrainFix, TerrainVerdict
 
 H = Header(stamp_ns=1_700_000_017_500_000_000, frame_id="map", source="terrain_nav/1", seq=7)
@@ -37,14 +38,22 @@ EXAMPLES: dict[str, Message] = {
         header=H,
         dx_m=-1498.2,
         dz_m=861.7,
-        x_corr_m=10_250.5,
-        z_corr_m=9_611.9,
-        cov_xz_m2=[[1900.0, 35.0], [35.0, 2100.0]],
-        dh_m=-43.2,
-        dvh_mps=0.41,
+        estimate=GaussianEstimate(
+            frame="map",
+            components=["x", "z"],
+            units=["m", "m"],
+            mean=[10_250.5, 9_611.9],
+            covariance=[[1900.0, 35.0], [35.0, 2100.0]],
+        ),
+        vertical=GaussianEstimate(
+            frame="map",
+            components=["dvh", "dh"],
+            units=["m/s", "m"],
+            mean=[0.41, -43.2],
+            covariance=[[0.02, 0.05], [0.05, 4.1]],
+        ),
         h_corr_m=1712.4,
         vh_corr_mps=0.02,
-        cov_vert=[[0.02, 0.05], [0.05, 4.1]],
         refined=False,
         cov_degenerate=False,
         i_star=-12,

@@ -3,7 +3,9 @@
 The exported schemas use a small part of JSON Schema (object/properties/required, number and integer bounds,
 string lengths, arrays with item counts, enum, anyOf, $ref to $defs), so the strategy is written here rather
 than taken from hypothesis-jsonschema, whose last release no longer runs with the locked Hypothesis. Numbers and
-integers are drawn at their bounds more often than anywhere else: valid but extreme values are the point.
+integers are drawn at their bounds more often than anywhere else: valid but extreme values are the point. One
+rule goes beyond the schema: a field holding a Gaussian estimate block gets a block of the layout the field
+declares (``x-components``), see :func:`_gaussian_block`.
 """
 
 from __future__ import annotations
@@ -56,7 +58,35 @@ def _number(s: dict[str, Any], integer: bool) -> st.SearchStrategy[Any]:
     return st.one_of(st.sampled_from(edges_f), floats) if edges_f else floats
 
 
+def _gaussian_block(s: dict[str, Any], defs: dict[str, Any]) -> st.SearchStrategy[dict[str, Any]]:
+    """A GaussianEstimate block of the layout its field declares (``x-components``, ``x-units``), so the block is
+    valid and the message around it can be: the mean drawn as any number field, the covariance a diagonal of
+    variances drawn to their extremes (positive semi-definite as the schema's Cholesky check wants). Without
+    this rule the four lists would almost never have the one common length the block's validator asks for."""
+    comps, units = s["x-components"], s["x-units"]
+    n = len(comps)
+    variance = st.one_of(st.sampled_from([0.0, 1e-300, 1.0, 1e300]), st.floats(0.0, 1e12))
+    number = _number({}, integer=False)
+    frame = _strategy(defs["GaussianEstimate"]["properties"]["frame"], defs)
+
+    def matrix(diag: list[float]) -> list[list[float]]:
+        return [[diag[i] if i == j else 0.0 for j in range(n)] for i in range(n)]
+
+    return st.fixed_dictionaries(
+        {
+            "frame": frame,
+            "components": st.just(list(comps)),
+            "units": st.just(list(units)),
+            "mean": st.lists(number, min_size=n, max_size=n),
+            "covariance": st.lists(variance, min_size=n, max_size=n).map(matrix),
+        }
+    )
+
+
 def _strategy(s: dict[str, Any], defs: dict[str, Any]) -> st.SearchStrategy[Any]:
+    if "x-components" in s:  # a GaussianEstimate field (or an optional one: anyOf with null)
+        block = _gaussian_block(s, defs)
+        return st.one_of(st.none(), block) if "anyOf" in s else block
     if "$ref" in s:
         return st.deferred(lambda: _strategy(defs[s["$ref"].split("/")[-1]], defs))
     if "anyOf" in s:

@@ -60,11 +60,11 @@ def test_init_then_fsf_start_then_kf_and_status_sequence() -> None:
     assert len(out) == 60
     assert [o.status for o in out[:2]] == ["INIT", "INIT"]
     assert [o.n_updates for o in out[:3]] == [1, 2, 3]
-    assert out[0].psi_los_deg is None and out[0].state is None and out[0].raw is None
+    assert out[0].psi_los_deg is None and out[0].estimate is None and out[0].raw is None
     assert all(o.raw is None for o in out)  # the raw baseline is off by default
     # plot 3: the FSF start; the state is the exact quadratic interpolation through the three converted plots
     assert out[2].status == "CONVERGING"
-    snap_x = np.array(out[2].state)
+    snap_x = np.array(out[2].estimate.mean)
     zs = []
     for p in plots[:3]:
         b, e = math.radians(p.az_deg), math.radians(p.el_deg)
@@ -93,7 +93,7 @@ def test_heading_undefined_early_and_for_slow_targets() -> None:
     assert {"HEADING_UNDEFINED", "ROLL_UNDEFINED"} <= set(early.flags)
     assert early.psi_deg is None and early.gamma_deg is None and early.psi_los_deg is None
     assert early.aspect_az_deg is None and early.aspect_total_deg is None and early.turn_rate_dps is None
-    assert early.theta_deg is not None and early.state is not None  # pitch needs V only
+    assert early.theta_deg is not None and early.estimate is not None  # pitch needs V only
     # a hovering target (5 m/s) never gets a heading
     slow = FlightPlan(p0_m=(20e3, 1e3, 10e3), speed_mps=5.0, psi_deg=30.0)
     plots, _ = paper_plots(40, plan=slow, radar="Vostok3D", noise=False)
@@ -213,7 +213,7 @@ def test_azimuth_is_normalised_modulo_360() -> None:
     a = run(AttitudeCore(), plots)
     b = run(AttitudeCore(), shifted)
     for x, y in zip(a[2:], b[2:], strict=True):
-        assert x.state == pytest.approx(y.state, rel=1e-9, abs=1e-6)
+        assert x.estimate.mean == pytest.approx(y.estimate.mean, rel=1e-9, abs=1e-6)
         assert x.az_deg == pytest.approx(y.az_deg, abs=1e-9)
         assert (x.psi_los_deg is None and y.psi_los_deg is None) or x.psi_los_deg == pytest.approx(
             y.psi_los_deg, abs=1e-9
@@ -249,7 +249,7 @@ def test_gap_longer_than_max_gap_scans_resets() -> None:
     assert out.status != "RESET" and out.n_updates == 21
     # next plot 4 scans later: 20 s > 3.5 T -> RESET with the current plot as plot 1
     out = run(core, [plots[26]])[0]
-    assert out.status == "RESET" and "GAP_RESET" in out.flags and out.n_updates == 1 and out.state is None
+    assert out.status == "RESET" and "GAP_RESET" in out.flags and out.n_updates == 1 and out.estimate is None
     out = run(core, plots[27:29])
     assert [o.status for o in out] == ["INIT", "CONVERGING"]
     assert out[-1].n_updates == 3
@@ -357,8 +357,8 @@ def test_estimate_at_extrapolates_with_b_and_m() -> None:
     est = core.estimate_at("t1", t_q)
     x, p = predict(snap.x, snap.p, 2.5, core.config.jerk_variances())
     assert est.header.stamp_ns == t_q and "EXTRAPOLATED" in est.flags
-    assert est.state == pytest.approx(x.tolist(), rel=1e-12)
-    assert np.array(est.state_cov) == pytest.approx(p, rel=1e-12)
+    assert est.estimate.mean == pytest.approx(x.tolist(), rel=1e-12)
+    assert np.array(est.estimate.covariance) == pytest.approx(p, rel=1e-12)
     assert same_state(snap, core.snapshot("t1"))  # the query does not change the state
     assert est.psi_los_deg == pytest.approx(out[-1].psi_los_deg, abs=1.0)
 
@@ -373,7 +373,7 @@ def test_coasting_outputs_at_missed_scans_when_enabled() -> None:
     t_last = a[14].header.stamp_ns
     assert [o.header.stamp_ns for o in coast] == [t_last + k * 5 * NS for k in (1, 2, 3)]
     assert all("EXTRAPOLATED" in o.flags for o in coast)
-    sig = [o.state_cov[0][0] for o in coast]
+    sig = [o.estimate.covariance[0][0] for o in coast]
     assert sig[0] < sig[1] < sig[2]
     assert [
         o for o in run(AttitudeCore(), [p for k in range(30) for p in (a[k], b[k])]) if o.status == "COASTING"
@@ -402,8 +402,8 @@ def test_outputs_follow_the_contract_and_round_trip_the_codec() -> None:
             assert o.header.frame_id == "radar_nue/r1" and o.header.source == "attitude"
             back = codec.decode(codec.encode(o), codec.encoding_of(AttitudeEstimate))
             assert back == o
-            if o.state_cov is not None:
-                p = np.array(o.state_cov)
+            if o.estimate is not None:
+                p = np.array(o.estimate.covariance)
                 assert np.array_equal(p, p.T) and is_positive_definite(p)
         last = out[-1]
         assert 0.0 <= last.psi_deg < 360.0 and -180.0 < last.psi_los_deg <= 180.0

@@ -98,8 +98,8 @@ def core_outputs(feed: Feed, config: AttitudeConfig | None = None) -> list[Attit
 
 def assert_estimate_sane(est: AttitudeEstimate) -> None:
     """Covariances symmetric positive definite, sigmas consistent with them."""
-    if est.state_cov is not None:
-        p = np.array(est.state_cov)
+    if est.estimate is not None:
+        p = np.array(est.estimate.covariance)
         assert np.allclose(p, p.T, rtol=0, atol=1e-9 * np.abs(p).max())
         assert np.all(np.linalg.eigvalsh(p) > 0)
     if est.angle_cov_los_deg2 is not None:

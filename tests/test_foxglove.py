@@ -84,19 +84,21 @@ def expected(msg: Message, site_enu: dict[str, list[float]]) -> list[tuple[str, 
     if isinstance(msg, Truth):
         return [(msg.platform, np.array(msg.position_m), None)]
     if isinstance(msg, TerrainFix):
-        cxz = np.array(msg.cov_xz_m2)  # (x north, z east)
-        cov = np.array([[cxz[1, 1], cxz[1, 0], 0.0], [cxz[0, 1], cxz[0, 0], 0.0], [0.0, 0.0, msg.cov_vert[1][1]]])
-        return [("tan1", np.array([msg.z_corr_m, msg.x_corr_m, msg.h_corr_m]), cov)]
+        cxz = np.array(msg.estimate.covariance)  # (x north, z east)
+        var_dh = msg.vertical.covariance[1][1]  # (dvh, dh)
+        cov = np.array([[cxz[1, 1], cxz[1, 0], 0.0], [cxz[0, 1], cxz[0, 0], 0.0], [0.0, 0.0, var_dh]])
+        x_corr, z_corr = msg.estimate.mean
+        return [("tan1", np.array([z_corr, x_corr, msg.h_corr_m]), cov)]
     if isinstance(msg, PclScanReport):
         return [
-            (f"track {t.track_id}", np.array(t.state_enu[:3]), np.array(t.cov_enu)[:3, :3])
+            (f"track {t.track_id}", np.array(t.estimate.mean[:3]), np.array(t.estimate.covariance)[:3, :3])
             for t in msg.tracks
             if t.status != "DROPPED"
         ]
-    if isinstance(msg, AttitudeEstimate) and msg.state is not None:
-        x = msg.state  # [x north, vx, ax, y up, vy, ay, z east, vz, az]
+    if isinstance(msg, AttitudeEstimate) and msg.estimate is not None:
+        x = msg.estimate.mean  # [x north, vx, ax, y up, vy, ay, z east, vz, az]
         pos = np.array([x[6], x[0], x[3]]) + np.array(site_enu[msg.site_id])
-        p = np.array(msg.state_cov)
+        p = np.array(msg.estimate.covariance)
         idx = [6, 0, 3]  # east, north, up
         return [(msg.target_id, pos, p[np.ix_(idx, idx)])]
     return []
@@ -295,10 +297,11 @@ def test_lbl_hypotheses_and_group_fixes_become_entities(tmp_path: Path) -> None:
             continue
         (e,) = m.entities
         f = rd_fixes[(e.id, stamp)]
-        cxy = np.array(f.cov_xy_m2)  # (north, east)
+        cxy = np.array(f.estimate.covariance)  # (north, east)
         want = np.array([[cxy[1, 1], cxy[1, 0], 0.0], [cxy[0, 1], cxy[0, 0], 0.0], [0.0, 0.0, NOMINAL_VERTICAL_VAR_M2]])
         assert np.allclose(cov_of_sphere(e.spheres[0]), want, atol=1e-6 * max(1.0, float(np.abs(want).max())))
         p = e.spheres[0].pose.position
-        assert [p.x, p.y, p.z] == pytest.approx([f.position_ned_m[1], f.position_ned_m[0], -f.position_ned_m[2]])
+        north, east = f.estimate.mean
+        assert [p.x, p.y, p.z] == pytest.approx([east, north, -f.depth_m])
         seen += 1
     assert seen == len(rd_fixes)

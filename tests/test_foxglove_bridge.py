@@ -38,6 +38,7 @@ from test_foxglove import cov_of_sphere, haversine, proto_class
 
 from schemas import Fix, Header, Truth
 from shared import codec, keys
+from shared.estimates import POSITION, gaussian
 from shared.session import open_session
 from shared.settings import ZenohSettings
 
@@ -64,8 +65,7 @@ def fix(i: int) -> Fix:
         estimator="test",
         status="TRACKING",
         valid=True,
-        position_m=[101.0 + i, 1998.0 - 3.0 * i, -21.0],
-        position_cov_m2=COV,
+        estimate=gaussian("local_enu", POSITION, [101.0 + i, 1998.0 - 3.0 * i, -21.0], COV),
     )
 
 
@@ -211,7 +211,7 @@ def test_client_receives_zenoh_messages_through_the_bridge(router: str, tmp_path
         stamp = entity.timestamp.seconds * 10**9 + entity.timestamp.nanos
         f = fixes[stamp]
         p = entity.spheres[0].pose.position
-        assert [p.x, p.y, p.z] == pytest.approx(f.position_m, abs=1e-9)
+        assert [p.x, p.y, p.z] == pytest.approx(f.estimate.mean, abs=1e-9)
         assert np.allclose(cov_of_sphere(entity.spheres[0]), np.array(COV), atol=1e-9)
     # the map: the fix at its great-circle distance and bearing from the origin
     loc_cls = proto_class("foxglove.LocationFix", base64.b64decode(channels[loc]["schema"]))
@@ -219,9 +219,9 @@ def test_client_receives_zenoh_messages_through_the_bridge(router: str, tmp_path
         lf = loc_cls.FromString(payload)
         f = fixes[lf.timestamp.seconds * 10**9 + lf.timestamp.nanos]
         d, b = haversine(ORIGIN["lat_deg"], ORIGIN["lon_deg"], lf.latitude, lf.longitude)
-        assert d == pytest.approx(math.hypot(f.position_m[0], f.position_m[1]), rel=5e-3)
-        assert abs(math.remainder(b - math.atan2(f.position_m[0], f.position_m[1]), math.tau)) < 5e-3
-        assert lf.altitude == pytest.approx(ORIGIN["alt_m"] + f.position_m[2])
+        assert d == pytest.approx(math.hypot(f.estimate.mean[0], f.estimate.mean[1]), rel=5e-3)
+        assert abs(math.remainder(b - math.atan2(f.estimate.mean[0], f.estimate.mean[1]), math.tau)) < 5e-3
+        assert lf.altitude == pytest.approx(ORIGIN["alt_m"] + f.estimate.mean[2])
         assert list(lf.position_covariance) == pytest.approx([v for row in COV for v in row])
 
 

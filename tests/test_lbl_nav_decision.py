@@ -366,8 +366,8 @@ def test_core_survives_extreme_and_invalid_inputs_with_its_state_intact(data: st
     assert {kept[j]: r for j, r in twin_refused.items()} == {j: r for j, r in refused.items() if r == "range_rate"}
     assert twin == outs
     for o in outs:
-        if isinstance(o, LblFix) and o.state_cov is not None:
-            P = np.array(o.state_cov)
+        if isinstance(o, LblFix) and o.state is not None:
+            P = np.array(o.state.covariance)
             assert np.all(np.isfinite(P)) and np.array_equal(P, P.T)
 
 

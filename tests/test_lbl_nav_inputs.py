@@ -195,11 +195,11 @@ def test_lifecycle_waiting_buffering_launch_ambiguous_resolved_tracking() -> Non
     for f in fixes:
         assert f.header.stamp_ns in set(int(s) for s in sim.stamps_ns)  # stamps come from the data grid
         if f.status in ("LAUNCH", "AMBIGUOUS"):
-            assert not f.valid and f.position_m is None and len(f.hypotheses) == 2
+            assert not f.valid and f.estimate is None and len(f.hypotheses) == 2
             assert sum(h.probability for h in f.hypotheses) == pytest.approx(1.0)
         if f.status in ("RESOLVED", "TRACKING"):
-            assert f.valid and f.position_m is not None and f.accepted_hypothesis is not None
-            assert f.state_cov is not None and f.sigma_dc_mps is not None
+            assert f.valid and f.estimate is not None and f.accepted_hypothesis is not None
+            assert f.state is not None and f.sigma_dc_mps is not None
     kinds = [o.kind for o in outs if isinstance(o, LblEvent)]
     assert kinds.count("launch") == 1 and kinds.count("decision") == 1
     launch = next(o for o in outs if isinstance(o, LblEvent) and o.kind == "launch")
@@ -263,7 +263,9 @@ def test_a_range_inconsistent_only_with_the_mirror_is_kept_and_resolves() -> Non
     decision = next(o for o in outs if isinstance(o, LblEvent) and o.kind == "decision")
     assert (decision.header.stamp_ns - t0) / NS <= 3.0
     launch_fix = next(o for o in outs if isinstance(o, LblFix) and o.status == "LAUNCH")
-    true_id = min(launch_fix.hypotheses, key=lambda h: math.dist(h.position_m[:2], (sim.x_m[sim.i0], sim.y_m[sim.i0])))
+    true_id = min(
+        launch_fix.hypotheses, key=lambda h: math.dist(h.estimate.mean[:2], (sim.x_m[sim.i0], sim.y_m[sim.i0]))
+    )
     assert decision.hypothesis_id == true_id.hypothesis_id
     assert not any(isinstance(o, LblEvent) and o.reason == "innovation_gate" for o in outs)
 
@@ -310,7 +312,7 @@ def test_dr_gaps_hold_values_inflate_noise_and_truncate_the_buffer() -> None:
     assert not fixes[t0 + 19 * NS].degraded and not fixes[t0 + 24 * NS].degraded
     # the held DR keeps the fix valid; the computed sigma grows faster across the gap than before it
     if fixes[t0 + 22 * NS].valid and fixes[t0 + 19 * NS].valid:
-        v = lambda t: fixes[t].position_cov_m2[0][0] + fixes[t].position_cov_m2[1][1]  # type: ignore[index] # noqa: E731
+        v = lambda t: fixes[t].estimate.covariance[0][0] + fixes[t].estimate.covariance[1][1]  # type: ignore[index] # noqa: E731
         assert v(t0 + 22 * NS) > 0.0 and math.isfinite(v(t0 + 22 * NS))
 
 
@@ -358,11 +360,11 @@ def test_launch_with_three_beacons(b3: tuple[float, float], expect: str) -> None
     truth = (sim.x_m[sim.i0], sim.y_m[sim.i0])
     if expect == "UNIQUE":
         assert fix0.valid and fix0.hypothesis_source == "unique"
-        sd = math.sqrt(fix0.position_cov_m2[0][0] + fix0.position_cov_m2[1][1])  # type: ignore[index]
-        assert math.dist(fix0.position_m[:2], truth) < 4.0 * sd  # type: ignore[index]
+        sd = math.sqrt(fix0.estimate.covariance[0][0] + fix0.estimate.covariance[1][1])  # type: ignore[index]
+        assert math.dist(fix0.estimate.mean[:2], truth) < 4.0 * sd  # type: ignore[index]
     else:
         assert not fix0.valid and len(fix0.hypotheses) == 2
-        assert min(math.dist(h.position_m[:2], truth) for h in fix0.hypotheses) < 60.0
+        assert min(math.dist(h.estimate.mean[:2], truth) for h in fix0.hypotheses) < 60.0
 
 
 def test_outputs_are_deterministic_and_unvalidated_mode_is_identical() -> None:
@@ -387,7 +389,7 @@ def test_travel_time_inputs_equal_range_inputs() -> None:
     assert len(fa) == len(fb)
     for x, y in zip(fa, fb, strict=True):
         for hx, hy in zip(x.hypotheses, y.hypotheses, strict=True):
-            assert math.dist(hx.position_m, hy.position_m) < 1e-6
+            assert math.dist(hx.estimate.mean, hy.estimate.mean) < 1e-6
 
 
 @pytest.mark.parametrize(
@@ -399,7 +401,7 @@ def test_options_run_and_resolve(kw: dict) -> None:  # type: ignore[type-arg]
     d = [o for o in outs if isinstance(o, LblEvent) and o.kind == "decision"]
     assert len(d) == 1
     last = [o for o in outs if isinstance(o, LblFix)][-1]
-    assert last.valid and math.dist(last.position_m[:2], (sim.x_m[-1], sim.y_m[-1])) < 50.0  # type: ignore[index]
+    assert last.valid and math.dist(last.estimate.mean[:2], (sim.x_m[-1], sim.y_m[-1])) < 50.0  # type: ignore[index]
 
 
 def test_dead_reckoning_only_when_no_range_is_used_for_a_while() -> None:
@@ -412,5 +414,5 @@ def test_dead_reckoning_only_when_no_range_is_used_for_a_while() -> None:
     assert fixes[t_cut + 29 * NS].status == "TRACKING"
     assert all(fixes[t_cut + k * NS].status == "DR_ONLY" and fixes[t_cut + k * NS].valid for k in range(30, 50))
     # the computed uncertainty grows while dead reckoning
-    var = [fixes[t_cut + k * NS].position_cov_m2[0][0] for k in (30, 49)]  # type: ignore[index]
+    var = [fixes[t_cut + k * NS].estimate.covariance[0][0] for k in (30, 49)]  # type: ignore[index]
     assert var[1] > var[0]

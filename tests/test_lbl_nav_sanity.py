@@ -70,8 +70,8 @@ def test_estimates_converge_and_merge_near_the_beacon_line() -> None:
             fix = next(o for o in outs if isinstance(o, LblFix) and o.status == "MERGED")
             assert fix.valid and fix.hypothesis_source == "merged" and fix.accepted_hypothesis is None
             i = sim.index_of(fix.header.stamp_ns)
-            sd = math.sqrt(fix.position_cov_m2[0][0] + fix.position_cov_m2[1][1])  # type: ignore[index]
-            assert math.dist(fix.position_m[:2], (sim.x_m[i], sim.y_m[i])) < 4.0 * sd  # type: ignore[index]
+            sd = math.sqrt(fix.estimate.covariance[0][0] + fix.estimate.covariance[1][1])  # type: ignore[index]
+            assert math.dist(fix.estimate.mean[:2], (sim.x_m[i], sim.y_m[i])) < 4.0 * sd  # type: ignore[index]
     assert merged >= 6
 
 

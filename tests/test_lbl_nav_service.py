@@ -105,10 +105,10 @@ def feed_bytes(svc: LblNavService, items: Iterable[Raw]) -> list[Output]:
 
 def assert_fix_sane(f: LblFix) -> None:
     """Covariances finite, symmetric, positive definite (the horizontal block; depth has variance 0)."""
-    covs = [np.array(h.position_cov_m2)[:2, :2] for h in f.hypotheses]
+    covs = [np.array(h.estimate.covariance)[:2, :2] for h in f.hypotheses]
     if f.valid:
-        assert f.position_cov_m2 is not None and f.state_cov is not None
-        covs += [np.array(f.position_cov_m2)[:2, :2], np.array(f.state_cov)]
+        assert f.estimate is not None and f.state is not None
+        covs += [np.array(f.estimate.covariance)[:2, :2], np.array(f.state.covariance)]
     for c in covs:
         assert np.all(np.isfinite(c)) and np.array_equal(c, c.T)
         assert np.linalg.eigvalsh(c)[0] > 0.0, (f.header.stamp_ns, c)
@@ -116,10 +116,10 @@ def assert_fix_sane(f: LblFix) -> None:
 
 def error_sigmas(f: LblFix, truth: dict[int, Truth]) -> float:
     """Horizontal error of a valid fix against the truth, in sigmas of its own covariance (Mahalanobis)."""
-    assert f.position_m is not None and f.position_cov_m2 is not None
+    assert f.estimate is not None
     t = truth[f.header.stamp_ns]
-    e = np.array(f.position_m[:2]) - np.array(t.position_m[:2])
-    c = np.array(f.position_cov_m2)[:2, :2]
+    e = np.array(f.estimate.mean[:2]) - np.array(t.position_m[:2])
+    c = np.array(f.estimate.covariance)[:2, :2]
     return float(math.sqrt(e @ np.linalg.solve(c, e)))
 
 
@@ -374,7 +374,7 @@ def test_a_log_missing_for_30_s_is_reported_and_the_estimate_stays_consistent() 
     fx = {f.header.stamp_ns: f for f in fixes(out)}
     assert [t // NS for t, f in fx.items() if f.degraded] == list(range(110, 140))
     truth = truths(sc)
-    sig = {t: math.sqrt(f.position_cov_m2[0][0] + f.position_cov_m2[1][1]) for t, f in fx.items() if f.valid}  # type: ignore[index]
+    sig = {t: math.sqrt(f.estimate.covariance[0][0] + f.estimate.covariance[1][1]) for t, f in fx.items() if f.valid}  # type: ignore[index]
     assert sig[139 * NS] > 1.3 * sig[109 * NS]  # held log values, sigma_w inflated: the uncertainty grows
     for t, f in fx.items():
         assert_fix_sane(f)

@@ -216,7 +216,7 @@ def test_u8_ratio_is_one_at_launch() -> None:
     assert launch_fix is not None
     assert launch_fix.log10_ratio == 0.0
     assert [h.probability for h in launch_fix.hypotheses] == [0.5, 0.5]
-    assert not launch_fix.valid and launch_fix.position_m is None
+    assert not launch_fix.valid and launch_fix.estimate is None
 
 
 def test_u12_both_filters_process_identical_measurements() -> None:

@@ -142,7 +142,7 @@ def test_c3_confirmation_changes_only_the_status_label(seed: int) -> None:
             assert set(live_b) <= set(live_a) and set(live_a) - set(live_b) <= mn_dropped
             for tid in set(live_b):
                 ta, tb = live_a[tid], live_b[tid]
-                assert ta.state_enu == tb.state_enu and ta.cov_enu == tb.cov_enu and ta.bistatic == tb.bistatic
+                assert ta.estimate == tb.estimate and ta.bistatic.mean == tb.bistatic.mean
                 compared += 1
         assert compared >= 45
 
@@ -217,7 +217,7 @@ def test_vectorised_loop_reproduces_the_core() -> None:
         compared += 1
         for k, rep in enumerate(reps[1:], start=1):
             tr = rep.tracks[0]
-            np.testing.assert_allclose(tr.state_enu, lr.x[r, k], rtol=1e-9, atol=1e-6)
-            np.testing.assert_allclose(tr.cov_enu, lr.P[r, k], rtol=1e-7, atol=1e-6)
+            np.testing.assert_allclose(tr.estimate.mean, lr.x[r, k], rtol=1e-9, atol=1e-6)
+            np.testing.assert_allclose(tr.estimate.covariance, lr.P[r, k], rtol=1e-7, atol=1e-6)
             assert (tr.associated_plot_id is not None) == bool(lr.in_gate[r, k])
     assert compared >= n - 2

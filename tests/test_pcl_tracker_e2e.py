@@ -75,7 +75,7 @@ def test_e1_through_the_stack_equals_the_offline_service(tmp_path: Path, monkeyp
     assert all(t.status == "CONFIRMED" for r in reports[4:] for t in r.tracks)
     c = np.deg2rad(256.0)
     truth = np.array([9000.0, 5000.0, 1000.0]) + 150.0 * 200.0 * np.array([np.sin(c), np.cos(c), 0.0])
-    assert float(np.linalg.norm(np.array(reports[-1].tracks[0].state_enu[:3]) - truth)) < 250.0
+    assert float(np.linalg.norm(np.array(reports[-1].tracks[0].estimate.mean[:3]) - truth)) < 250.0
 
 
 def test_demo_with_two_instances_equals_the_offline_services(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from schemas.base import Header
-from schemas.pcl_tracker import PclScanReport, PclTrackReport
+from schemas.pcl_tracker import BISTATIC, PclScanReport, PclTrackReport
 from schemas.radar import BistaticConfigUpdate, BistaticPlot, BistaticScan
 from services.pcl_tracker.config import PclTrackerConfig
 from services.pcl_tracker.core import PclTracker
@@ -16,6 +16,7 @@ from services.pcl_tracker.geometry import h_b
 from services.pcl_tracker.metrics import ospa, run_metrics
 from services.pcl_tracker.models import cv_process_noise, cv_transition
 from services.pcl_tracker.simulation import scan_from_bistatic
+from shared.estimates import CV_STATE, gaussian
 from shared.filters.angles import wrap_pi
 from shared.filters.covariance import CholeskyStats, robust_cholesky
 from shared.service import InputRejected
@@ -109,12 +110,12 @@ def test_bad_sigmas_are_replaced_by_the_defaults_and_flagged() -> None:
         trk, _ = warm_tracker()
         rep = trk.step(scan_of(9, [plot("a", z, **bad)]))[0]
         assert "sigma_defaulted" in rep.flags and rep.n_plots_flagged.get("sigma_defaulted") == 1
-        assert rep.tracks[0].state_enu == ref.tracks[0].state_enu
+        assert rep.tracks[0].estimate.mean == ref.tracks[0].estimate.mean
     # absent sigmas take the defaults silently
     trk, _ = warm_tracker()
     nosig = plot("a", z, sigma_rb_m=None, sigma_az_deg=None, sigma_el_deg=None, sigma_vb_mps=None)
     rep = trk.step(scan_of(9, [nosig]))[0]
-    assert "sigma_defaulted" not in rep.flags and rep.tracks[0].state_enu == ref.tracks[0].state_enu
+    assert "sigma_defaulted" not in rep.flags and rep.tracks[0].estimate.mean == ref.tracks[0].estimate.mean
 
 
 def test_negative_bistatic_range_is_clamped_near_the_baseline_else_rejected() -> None:
@@ -161,7 +162,7 @@ def test_azimuth_is_wrapped_not_rejected_and_range_forms_are_equivalent() -> Non
                 p = plot("a", z, bistatic_range_m=None, delay_s=float(z[0]) / c)
             elif form == "doppler":
                 p = plot("a", z, bistatic_velocity_mps=None, doppler_hz=float(z[3]) / (-1.0 * lam))
-            out.extend(r.tracks[0].state_enu for r in trk.step(scan_of(k, [p])) if r.tracks)
+            out.extend(r.tracks[0].estimate.mean for r in trk.step(scan_of(k, [p])) if r.tracks)
         return out
 
     ref = run("plain")
@@ -198,8 +199,8 @@ def test_low_rb_plot_is_a_hit_without_update_and_never_initiates() -> None:
     Q = cv_process_noise(3.0, 0.01)[0]
     assert tr.associated_plot_id is not None and tr.consecutive_misses == 0 and not tr.updated
     assert "low_rb_hit" in tr.flags
-    np.testing.assert_allclose(tr.state_enu, F @ x0, rtol=1e-12)
-    np.testing.assert_allclose(tr.cov_enu, F @ P0 @ F.T + Q, rtol=1e-9)
+    np.testing.assert_allclose(tr.estimate.mean, F @ x0, rtol=1e-12)
+    np.testing.assert_allclose(tr.estimate.covariance, F @ P0 @ F.T + Q, rtol=1e-9)
 
 
 # ------------------------------------------------------------------------------------------------ ordering
@@ -373,8 +374,8 @@ def test_on_demand_prediction_does_not_change_state() -> None:
     p = trk.predict(1, 21 * NS + 2 * NS)
     F = cv_transition(2.0)[0]
     Q = cv_process_noise(2.0, 0.01)[0]
-    np.testing.assert_allclose(p.state_enu, F @ np.array(tr.state_enu), rtol=1e-12)
-    np.testing.assert_allclose(p.cov_enu, F @ np.array(tr.cov_enu) @ F.T + Q, rtol=1e-9)
+    np.testing.assert_allclose(p.estimate.mean, F @ np.array(tr.estimate.mean), rtol=1e-12)
+    np.testing.assert_allclose(p.estimate.covariance, F @ np.array(tr.estimate.covariance) @ F.T + Q, rtol=1e-9)
     assert trk.tracks[1].t_ns == 21 * NS
 
 
@@ -394,10 +395,8 @@ def make_report(scan_id: int, tracks: list[tuple[int, list[float]]]) -> PclScanR
             status="CONFIRMED",
             scan_id=scan_id,
             t_s=float(scan_id),
-            state_enu=[*map(float, pos), 0.0, 0.0, 0.0],
-            cov_enu=cov6,
-            bistatic=[1.0, 0.0, 0.0, 0.0],
-            bistatic_cov=cov4,
+            estimate=gaussian("pcl_enu", CV_STATE, [*map(float, pos), 0.0, 0.0, 0.0], cov6),
+            bistatic=gaussian("bistatic/rx1/fm", BISTATIC, [1.0, 0.0, 0.0, 0.0], cov4),
             hits=2,
             consecutive_misses=0,
             age_scans=0,

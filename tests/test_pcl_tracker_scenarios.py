@@ -53,7 +53,7 @@ def ids_created(reps: list[PclScanReport]) -> set[int]:
 def final_error(run: SimRun, reps: list[PclScanReport]) -> float:
     last = reps[-1]
     errs = [
-        float(np.linalg.norm(np.array(t.state_enu[:3]) - run.true_states[-1, 0, :3]))
+        float(np.linalg.norm(np.array(t.estimate.mean[:3]) - run.true_states[-1, 0, :3]))
         for t in last.tracks
         if t.status == "CONFIRMED"
     ]
@@ -109,8 +109,8 @@ def test_e2_m_of_n_confirmation_changes_only_the_label() -> None:
         status = [next(t.status for t in r.tracks if t.track_id == 1) for r in mn[1:5]]
         assert status == ["TENTATIVE", "TENTATIVE", "TENTATIVE", "CONFIRMED"], (seed, status)
         for a, b in zip(base, mn, strict=True):
-            sa = {t.track_id: t.state_enu for t in a.tracks}
-            sb = {t.track_id: t.state_enu for t in b.tracks}
+            sa = {t.track_id: t.estimate.mean for t in a.tracks}
+            sb = {t.track_id: t.estimate.mean for t in b.tracks}
             assert sa == sb, seed
     # runs whose first three plots after creation are all in the gate: about 0.99^3 of them
     assert clean >= rate_bound(0.97, n, 0.97) * n

@@ -203,9 +203,7 @@ def run_items(svc: PclTrackerService, items: list[Item]) -> tuple[list[PclScanRe
 def track_view(reports: list[PclScanReport]) -> dict[int, list[tuple[Any, ...]]]:
     """Per scan: every track's id, status, state, covariance, bistatic image and association."""
     return {
-        r.scan_id: [
-            (t.track_id, t.status, t.state_enu, t.cov_enu, t.bistatic, t.bistatic_cov, t.nis, t.hits) for t in r.tracks
-        ]
+        r.scan_id: [(t.track_id, t.status, t.estimate, t.bistatic, t.nis, t.hits) for t in r.tracks]
         for r in reports
         if r.trigger == "scan"
     }
@@ -214,7 +212,7 @@ def track_view(reports: list[PclScanReport]) -> dict[int, list[tuple[Any, ...]]]
 def assert_valid_covariances(reports: list[PclScanReport]) -> None:
     for r in reports:
         for t in r.tracks:
-            P = np.array(t.cov_enu)
+            P = np.array(t.estimate.covariance)
             assert np.array_equal(P, P.T)
             assert float(np.linalg.eigvalsh(P).min()) > 0.0
 
@@ -327,7 +325,8 @@ def test_end_marker_flushes_and_starts_a_fresh_tracker_with_new_ids() -> None:
     assert min(t.track_id for r in second for t in r.tracks) > max(first_ids)  # ids never reused
     core = PclTracker(paper_scenario().tracker_config(preset="paper"))
     expected = [r for s in scans for r in core.step(s)]
-    assert [[t.state_enu for t in r.tracks] for r in second] == [[t.state_enu for t in r.tracks] for r in expected]
+    means = [[t.estimate.mean for t in r.tracks] for r in expected]
+    assert [[t.estimate.mean for t in r.tracks] for r in second] == means
 
 
 def test_an_end_marker_that_overtakes_the_last_scans_waits_for_them() -> None:
@@ -455,7 +454,7 @@ def test_plot_forms_through_the_service_match_the_core() -> None:
     for ra, rb in zip(a, b, strict=True):
         assert [t.track_id for t in ra.tracks] == [t.track_id for t in rb.tracks]
         for ta, tb in zip(ra.tracks, rb.tracks, strict=True):
-            np.testing.assert_allclose(ta.state_enu, tb.state_enu, rtol=1e-6, atol=1e-3)
+            np.testing.assert_allclose(ta.estimate.mean, tb.estimate.mean, rtol=1e-6, atol=1e-3)
 
 
 def test_preset_paper_from_environment_and_params(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -259,14 +259,14 @@ def test_u9_coasting_and_drop_after_k_misses() -> None:
     assert last.status == "CONFIRMED"
     F = cv_transition(3.0)[0]
     Q = cv_process_noise(3.0, cfg.tracker.q_accel_var_m2s4)[0]
-    x, P = np.array(last.state_enu), np.array(last.cov_enu)
+    x, P = np.array(last.estimate.mean), np.array(last.estimate.covariance)
     for k, misses in ((11, 1), (12, 2)):
         rep = trk.step(scan(k, []))[0]  # type: ignore[arg-type]
         tr = tracks_of(rep)[1]
         x, P = F @ x, F @ P @ F.T + Q
         assert tr.status == "CONFIRMED" and tr.coasted and tr.consecutive_misses == misses
-        np.testing.assert_allclose(tr.state_enu, x, rtol=1e-12, atol=1e-9)
-        np.testing.assert_allclose(tr.cov_enu, P, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(tr.estimate.mean, x, rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(tr.estimate.covariance, P, rtol=1e-9, atol=1e-9)
     rep = trk.step(scan(13, []))[0]  # type: ignore[arg-type]
     dropped = [t for t in rep.tracks if t.track_id == 1]
     assert len(dropped) == 1 and dropped[0].status == "DROPPED" and dropped[0].drop_reason == "K_misses"
@@ -329,7 +329,7 @@ def test_u11_two_of_l_with_l_3_pairs_within_two_scans_only() -> None:
         true_z(0.0)[None], SIG[None], true_z(6.0)[None], SIG[None], np.array([6.0]), "full"
     )
     ref = bistatic_to_cartesian(xb, Pb, TX)
-    np.testing.assert_allclose(tr.state_enu, ref.mean[0], rtol=1e-9, atol=1e-6)
+    np.testing.assert_allclose(tr.estimate.mean, ref.mean[0], rtol=1e-9, atol=1e-6)
     # a plot 3 scans later is outside the 2/3 window
     trk = PclTracker(cfg)
     reps = run_core(trk, [scan(1, [true_z(0.0)]), scan(2, []), scan(3, []), scan(4, [true_z(9.0)])])

@@ -108,10 +108,10 @@ def test_a_collapsed_cloud_reports_a_positive_definite_covariance(ax: float, ay:
             cycle_status=cycle_status, beacons=["lead", "f0"], nis=nis, flags=["B", "A", "B"],
         )  # fmt: skip
         fix = builder.build(content, state)
-        assert np.linalg.eigvalsh(np.array(fix.cov_xy_m2)).min() > 0.0
+        assert np.linalg.eigvalsh(np.array(fix.estimate.covariance)).min() > 0.0
         assert fix.nis == (nis if nis is not None and np.isfinite(nis) else None)
         assert fix.beacons_used == (["lead", "f0"] if cycle_status == "USED" else [])
-        assert fix.flags == ["A", "B"] and fix.position_ned_m[2] == 0.0 and fix.valid
+        assert fix.flags == ["A", "B"] and fix.depth_m == 0.0 and fix.valid
 
 
 @settings(max_examples=40, deadline=None)

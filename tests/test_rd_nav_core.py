@@ -166,7 +166,7 @@ def test_static_receiver_converges_and_outputs_are_stamped_from_data() -> None:
     assert len(fixes) == 6 and len(cycles) == 6
     last = fixes[-1]
     assert last.status == "TRACKING" and last.cycle_status == "USED" and last.valid
-    assert math.hypot(last.position_ned_m[0] - P1[0], last.position_ned_m[1] - P1[1]) < 0.3
+    assert math.hypot(last.estimate.mean[0] - P1[0], last.estimate.mean[1] - P1[1]) < 0.3
     assert last.beacons_used == ["auv1", "auv2", "auv3"]
     # epoch of a cycle fix = the leader arrival's data stamp; t_local_s = its receiver-clock reading
     for f, c in zip(fixes, cycles, strict=True):
@@ -188,7 +188,7 @@ def test_t_mm_2_clock_offset_invariance_through_the_core() -> None:
     a.run_cycles(5)
     b.run_cycles(5)
     for fa, fb in zip(a.fixes(), b.fixes(), strict=True):
-        assert math.dist(fa.position_ned_m, fb.position_ned_m) < 1e-6
+        assert math.dist([*fa.estimate.mean, fa.depth_m], [*fb.estimate.mean, fb.depth_m]) < 1e-6
     for ca, cb in zip(a.cycles(), b.cycles(), strict=True):
         assert np.allclose([o.d_m for o in ca.followers], [o.d_m for o in cb.followers], atol=1e-6)
 
@@ -371,7 +371,7 @@ def test_dr_only_after_three_missed_cycles_and_lost_on_dvl_dropout() -> None:
         rig.sensors(rig.t + k)
     prop = rig.fixes(kind="PROPAGATED")
     assert prop[-1].status == "DR_ONLY" and prop[-1].cycles_since_update >= 3
-    trace = [p.cov_xy_m2[0][0] + p.cov_xy_m2[1][1] for p in prop[-40:]]
+    trace = [p.estimate.covariance[0][0] + p.estimate.covariance[1][1] for p in prop[-40:]]
     assert trace[-1] > trace[0]  # covariance grows with q while coasting
     t = rig.t + 41
     for k in range(10):  # DVL without bottom lock beyond the 5 s hold
@@ -393,7 +393,7 @@ def test_reinit_from_consistent_snapshots_after_loss_of_lock() -> None:
     assert "REINIT" in statuses and rig.core.reinit_count == 1
     assert [f.reject_reason for f in rig.fixes()[-4:-2]] == ["NIS_GATE", "NIS_GATE"]
     f = rig.fixes()[-1]
-    assert f.status == "TRACKING" and math.hypot(f.position_ned_m[0] - P1[0], f.position_ned_m[1] - P1[1]) < 1.0
+    assert f.status == "TRACKING" and math.hypot(f.estimate.mean[0] - P1[0], f.estimate.mean[1] - P1[1]) < 1.0
     assert_state_valid(rig.core)
 
 
@@ -408,7 +408,7 @@ def test_start_from_snapshots_without_a_start_position() -> None:
     rig.run_cycles(5)
     fixes = rig.fixes()
     assert core.snapshot_starts == 1 and len(fixes) >= 1
-    assert math.hypot(fixes[-1].position_ned_m[0] - P1[0], fixes[-1].position_ned_m[1] - P1[1]) < 1.0
+    assert math.hypot(fixes[-1].estimate.mean[0] - P1[0], fixes[-1].estimate.mean[1] - P1[1]) < 1.0
 
 
 def test_unsupported_and_wrong_receiver_inputs() -> None:
@@ -467,12 +467,12 @@ def test_one_late_arrival_is_identified_and_the_rest_is_used() -> None:
     _late_cycle(rig, "auv3", 0.030)  # +45 m on d_3
     f = rig.fixes()[-1]
     assert f.cycle_status == "PARTIAL" and "OUTLIER:auv3" in f.flags and f.beacons_used == ["auv1", "auv2"]
-    assert math.hypot(f.position_ned_m[0] - P1[0], f.position_ned_m[1] - P1[1]) < 1.0
+    assert math.hypot(f.estimate.mean[0] - P1[0], f.estimate.mean[1] - P1[1]) < 1.0
     rig.run_cycles(1)
     _late_cycle(rig, "auv1", 0.020)  # the leader: -30 m on both d_j
     f = rig.fixes()[-1]
     assert f.cycle_status == "PARTIAL" and "OUTLIER:auv1" in f.flags
-    assert math.hypot(f.position_ned_m[0] - P1[0], f.position_ned_m[1] - P1[1]) < 1.0
+    assert math.hypot(f.estimate.mean[0] - P1[0], f.estimate.mean[1] - P1[1]) < 1.0
     # the same arrival late twice in a row is not explained away: the second cycle is gated out
     rig.run_cycles(1)
     _late_cycle(rig, "auv2", 0.030)

@@ -213,8 +213,8 @@ def _pf_fixes(name: str, run: int, **config: Any) -> list[tuple[str, float, floa
         for m in core.step(ev.msg):
             if output_key("auv4", m) == fix_key("auv4"):
                 n, e = track.at(m.header.stamp_ns) or (math.nan, math.nan)
-                q = m.cov_xy_m2  # type: ignore[attr-defined]
-                x, y = m.position_ned_m[:2]  # type: ignore[attr-defined]
+                q = m.estimate.covariance  # type: ignore[attr-defined]
+                x, y = m.estimate.mean  # type: ignore[attr-defined]
                 out.append((m.kind, m.header.stamp_ns * 1e-9, math.hypot(x - n, y - e), math.sqrt(q[0][0] + q[1][1])))  # type: ignore[attr-defined]
     return out
 

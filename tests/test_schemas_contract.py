@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from typing import Any
 
 import msgpack
 import pytest
@@ -152,13 +153,17 @@ def test_physical_bounds_and_one_of_rules() -> None:
 
 
 def test_covariance_must_be_symmetric_positive_semidefinite() -> None:
-    good = _payload(all_examples()["Fix"])
-    asym = dict(good, position_cov_m2=[[1.0, 0.5, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
-    with pytest.raises(codec.DecodeError):
-        codec.validate(Fix, asym)
-    indefinite = dict(good, position_cov_m2=[[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
-    with pytest.raises(codec.DecodeError):
-        codec.validate(Fix, indefinite)
-    wrong_size = dict(good, position_cov_m2=[[1.0, 0.0], [0.0, 1.0]])
-    with pytest.raises(codec.DecodeError):
-        codec.validate(Fix, wrong_size)
+    good: dict[str, Any] = _payload(all_examples()["Fix"])
+    codec.validate(Fix, good)
+
+    def with_cov(cov: list[list[float]]) -> dict[str, Any]:
+        return dict(good, estimate=dict(good["estimate"], covariance=cov))
+
+    for bad, why in [
+        ([[1.0, 0.5, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], "not symmetric"),
+        ([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]], "positive semi-definite"),
+        ([[1.0, 0.0], [0.0, 1.0]], "one entry"),
+    ]:
+        with pytest.raises(codec.DecodeError) as info:
+            codec.validate(Fix, with_cov(bad))
+        assert why in info.value.detail

@@ -84,9 +84,10 @@ def test_one_verdict_per_group_and_a_fix_after_each_valid_verdict(flight: Simula
     # corrected position = INS position at t_fix + correction; it lands near the true position
     for f in fixes:
         k = int(np.argmin(np.abs(flight.t - f.header.stamp_ns * 1e-9)))
-        assert f.x_corr_m - f.dx_m == pytest.approx(flight.x_ins[k], abs=15.0)  # INS moves 10 m per tick
-        assert abs(f.z_corr_m - flight.z_true[k]) < 125.0
-        assert f.h_corr_m == pytest.approx(f.dh_m + flight.h_ins[k], abs=1.0)
+        x_corr, z_corr = f.estimate.mean
+        assert x_corr - f.dx_m == pytest.approx(flight.x_ins[k], abs=15.0)  # INS moves 10 m per tick
+        assert abs(z_corr - flight.z_true[k]) < 125.0
+        assert f.h_corr_m == pytest.approx(f.vertical.mean[f.vertical.index("dh")] + flight.h_ins[k], abs=1.0)
 
 
 def test_same_input_gives_the_same_output(flight: SimulatedFlight) -> None:
@@ -294,7 +295,8 @@ def test_baro_altitude_source_uses_the_baro_stream(flight: SimulatedFlight) -> N
     assert len(fa) == len(fb) > 0
     for a, b in zip(fa, fb, strict=True):
         assert (a.dx_m, a.dz_m) == pytest.approx((b.dx_m, b.dz_m), abs=1e-6)
-        assert a.dh_m == pytest.approx(b.dh_m, abs=1e-6)
+        dh = a.vertical.index("dh")
+        assert a.vertical.mean[dh] == pytest.approx(b.vertical.mean[dh], abs=1e-6)
     # without the baro stream every RA sample is unsynchronisable
     _, rejected = _feed(TerrainNavigator(flight.world.ref_map, baro_cfg), msgs[:100])
     assert rejected == Counter({"unsynchronised": 50})
@@ -318,7 +320,7 @@ def test_refinement_flags_fixes_and_keeps_them_accurate(flight: SimulatedFlight)
     errs = np.array([fix_errors_cells(f, flight) for f in fixes])
     assert np.abs(errs).max() <= 1.0
     for f in fixes:
-        assert np.all(np.linalg.eigvalsh(np.array(f.cov_xz_m2)) > 0)
+        assert np.all(np.linalg.eigvalsh(np.array(f.estimate.covariance)) > 0)
 
 
 def test_refinement_beats_the_cell_centre_estimate() -> None:

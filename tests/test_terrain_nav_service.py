@@ -97,7 +97,7 @@ def truth_of(events: Iterable[tuple[str, Message]]) -> TruthTrack:
 
 
 def assert_fix_sane(fix: TerrainFix, truth: TruthTrack, max_cells: float = 1.0) -> None:
-    cov = np.array(fix.cov_xz_m2)
+    cov = np.array(fix.estimate.covariance)
     assert np.allclose(cov, cov.T) and np.all(np.linalg.eigvalsh(cov) > 0)
     ex, ez = fix_errors_cells(fix, truth)
     assert max(abs(ex), abs(ez)) <= max_cells, (fix.header.stamp_ns, ex, ez)

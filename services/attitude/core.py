@@ -19,9 +19,10 @@ import numpy as np
 from scipy.stats import chi2
 
 from schemas import RadarPlot, RadarSite, TrackEnd
-from schemas.attitude import AttitudeEstimate, AttitudeFlag, AttitudeStatus, RawAttitudeAngles
+from schemas.attitude import CA_STATE, AttitudeEstimate, AttitudeFlag, AttitudeStatus, RawAttitudeAngles
 from schemas.base import Header, StrictModel
 from shared.errors import InputRejected
+from shared.estimates import gaussian
 
 from . import imm
 from .angles import IDX, N_ANGLES, AngleConventions, angle_block, angle_jacobian
@@ -32,7 +33,9 @@ from .initiation import fsf_condition, fsf_estimate, quadratic_state
 
 _M = TypeVar("_M", bound=StrictModel)
 
-_COV_FIELDS = ("state_cov", "angle_cov_los_deg2")
+#: covariance fields that skip the schema's PSD check with validate_covariances=False (the state block is built
+#: unvalidated by shared.estimates.gaussian then)
+_COV_FIELDS = ("angle_cov_los_deg2",)
 
 NS = 1_000_000_000
 _R2D = 180.0 / math.pi
@@ -611,8 +614,9 @@ class AttitudeCore:
             range_m=r_m,
             az_deg=beta * _R2D,
             el_deg=eps * _R2D,
-            state=xl,
-            state_cov=p.tolist(),
+            estimate=gaussian(
+                self.config.frame_id_prefix + tr.site_id, CA_STATE, xl, p.tolist(), validate=self._validate_cov
+            ),
             speed_mps=speed,
             turn_rate_dps=kin.psi_dot * _R2D if heading_ok else None,
             load_factor=load if heading_ok and pitch_ok and math.isfinite(load) else None,

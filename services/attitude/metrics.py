@@ -96,13 +96,13 @@ def true_load_factor(truth: Truth, g: float = 9.81) -> float:
 def state_nees(est: AttitudeEstimate, truth: Truth) -> float:
     """NEES e^T P^-1 e of the 9-state [x Vx ax y Vy ay z Vz az] against the truth (frame E); NaN without a
     covariance, a true velocity or acceleration. chi2 with 9 degrees of freedom for a consistent filter."""
-    if est.state is None or est.state_cov is None or truth.velocity_mps is None or truth.acceleration_mps2 is None:
+    if est.estimate is None or truth.velocity_mps is None or truth.acceleration_mps2 is None:
         return math.nan
     p, v, a = truth.position_m, truth.velocity_mps, truth.acceleration_mps2
     xt = np.array([p[0], v[0], a[0], p[1], v[1], a[1], p[2], v[2], a[2]])
-    e = np.asarray(est.state) - xt
+    e = np.asarray(est.estimate.mean) - xt
     try:
-        return float(e @ np.linalg.solve(np.asarray(est.state_cov), e))
+        return float(e @ np.linalg.solve(np.asarray(est.estimate.covariance), e))
     except np.linalg.LinAlgError:
         return math.nan
 
@@ -141,7 +141,7 @@ class RunRecorder:
         rec["phase"].append(truth_phase(truth))
         rec["since_manoeuvre_s"].append(truth.extra.get("since_manoeuvre_s", math.nan))
         rec["load_factor_true"].append(true_load_factor(truth))
-        if est is None or est.state is None:
+        if est is None or est.estimate is None:
             rec["nees"].append(math.nan)
         else:
             rec["nees"].append(state_nees(est, truth))
@@ -160,7 +160,7 @@ class RunRecorder:
             sig = getattr(est, f_sig) if f_sig is not None else None
             rec["sigma"][name].append(math.nan if sig is None else float(sig))
             rec["raw_err"][name].append(math.nan if raw is None else _err(getattr(raw, f_val), ta[name]))
-        x = est.state
+        x = None if est.estimate is None else est.estimate.mean
         if x is None:
             rec["pos_err_m"].append(math.nan)
             rec["vel_err_mps"].append(math.nan)

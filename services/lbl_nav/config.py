@@ -146,7 +146,9 @@ class LblNavConfig(BaseModel):
     max_epochs_per_step: int = Field(
         default=100_000, ge=1, description="[IMPL] a stamp jump beyond this many epochs resets the estimator"
     )
-    sigma_depth_m: float = Field(default=0.0, ge=0.0, description="[IMPL] depth std reported in position_cov_m2")
+    sigma_depth_m: float = Field(
+        default=0.0, ge=0.0, description="[IMPL] depth std reported in the fix's position covariance"
+    )
     validate_outputs: bool = Field(
         default=True, description="[IMPL] False: build outputs without pydantic validation (Monte-Carlo speed only)"
     )

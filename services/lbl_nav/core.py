@@ -30,8 +30,11 @@ from schemas import (
     NavReset,
     SpeedLog,
 )
-from schemas.lbl_nav import LblEvent, LblFix
+from schemas.estimate import GaussianEstimate
+from schemas.lbl_nav import LBL_STATE, LblEvent, LblFix
 from shared.errors import InputRejected
+from shared.estimates import POSITION, gaussian
+from shared.models import built
 
 from . import initiation
 from .config import LblNavConfig
@@ -56,23 +59,15 @@ def _model_info(cls: type[BaseModel]) -> tuple[dict[str, Any], int, bool]:
     return info
 
 
-_setattr = object.__setattr__
-
-
 def _construct(cls: type[M], kw: dict[str, Any]) -> M:
     """``cls.model_construct(**defaults, **kw)`` without its per-field loop (a fifth of its cost): every field of
     the model is given (the non-factory defaults merged in), so the instance is the one model_construct builds —
-    the same ``__dict__`` and fields set, no extra, no private attributes (the schemas have none)."""
+    the same ``__dict__`` and fields set, no extra, no private attributes: :func:`shared.models.built`)."""
     defaults, n_fields, post_init = _model_info(cls)
     values = {**defaults, **kw}
     if len(values) != n_fields or post_init:
         return cls.model_construct(**values)
-    obj = cls.__new__(cls)
-    _setattr(obj, "__dict__", values)
-    _setattr(obj, "__pydantic_fields_set__", set(values))
-    _setattr(obj, "__pydantic_extra__", None)
-    _setattr(obj, "__pydantic_private__", None)
-    return obj
+    return built(cls, values)
 
 
 #: [IMPL] physically possible values of the DR inputs (m/s, m); anything beyond is refused before use, so that a
@@ -535,6 +530,9 @@ class LblNavCore:
         kw.setdefault("centres_m", [])
         return self._make(LblEvent, header=self._header(stamp), platform=self.cfg.platform, kind=kind, **kw)
 
+    def _position(self, mean: list[float], cov: list[list[float]]) -> GaussianEstimate:
+        return gaussian(self._frame_id, POSITION, mean, cov, validate=self._validate)
+
     def _pos_cov(self, P: np.ndarray) -> list[list[float]]:
         return self._pos_cov_list(P[:2, :2].tolist())
 
@@ -570,8 +568,7 @@ class LblNavCore:
                     Hypothesis,
                     {
                         "hypothesis_id": h.hyp_id,
-                        "position_m": [float(X[IX]), float(X[IY]), depth],
-                        "position_cov_m2": self._pos_cov(P),
+                        "estimate": self._position([float(X[IX]), float(X[IY]), depth], self._pos_cov(P)),
                         "probability": float(probs[h.hyp_id]),
                     },
                 )
@@ -597,18 +594,13 @@ class LblNavCore:
         cov = P.tolist()
         common.update(
             valid=True,
-            position_m=[x[IX], x[IY], depth],
-            position_cov_m2=self._pos_cov_list(cov),
+            estimate=self._position([x[IX], x[IY], depth], self._pos_cov_list(cov)),
             accepted_hypothesis=self.accepted,
             hypothesis_source=self.source,
-            dc_mps=x[IDC],
-            dK_rad=x[IDK],
-            dU_north_mps=x[IUN],
-            dU_east_mps=x[IUE],
+            state=gaussian(self._frame_id, LBL_STATE, x, cov, validate=self._validate),
             sigma_dc_mps=math.sqrt(max(cov[IDC][IDC], 0.0)),
             sigma_dK_rad=math.sqrt(max(cov[IDK][IDK], 0.0)),
             sigma_dU_north_mps=math.sqrt(max(cov[IUN][IUN], 0.0)),
             sigma_dU_east_mps=math.sqrt(max(cov[IUE][IUE], 0.0)),
-            state_cov=cov,
         )
         return self._make_from(LblFix, common)

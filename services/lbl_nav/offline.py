@@ -113,14 +113,14 @@ def trace_from_outputs(
     tr.log10_ratio = np.array([np.nan if f.log10_ratio is None else f.log10_ratio for f in post])
     tr.catching_up = np.array([f.catching_up for f in post], dtype=bool)
     for j, f in enumerate(post):
-        if f.valid and f.position_m is not None and f.position_cov_m2 is not None:
-            tr.pos[j] = f.position_m[:2]
-            tr.var[j] = (f.position_cov_m2[0][0], f.position_cov_m2[1][1])
+        if f.valid and f.estimate is not None:
+            tr.pos[j] = f.estimate.mean[:2]
+            tr.var[j] = (f.estimate.covariance[0][0], f.estimate.covariance[1][1])
         for h in f.hypotheses:
             arr = tr.hyp_pos.setdefault(h.hypothesis_id, np.full((n, 2), np.nan))
-            arr[j] = h.position_m[:2]
+            arr[j] = h.estimate.mean[:2]
     if n and len(post[0].hypotheses) == 2:
-        d = {h.hypothesis_id: math.dist(h.position_m[:2], tr.truth[0]) for h in post[0].hypotheses}
+        d = {h.hypothesis_id: math.dist(h.estimate.mean[:2], tr.truth[0]) for h in post[0].hypotheses}
         tr.true_label = min(d, key=lambda u: d[u])
     for f in post:
         if f.resolved_stamp_ns is not None:

@@ -201,7 +201,7 @@ def run_metrics(
         truth = true_states[k, alive_idx] if alive_idx else np.zeros((0, 6))
         rep = by_scan.get(sid)
         conf = [t for t in rep.tracks if t.status == "CONFIRMED"] if rep is not None else []
-        states = np.array([t.state_enu for t in conf], dtype=np.float64).reshape(-1, 6)
+        states = np.array([t.estimate.mean for t in conf], dtype=np.float64).reshape(-1, 6)
         confirmed_ids.update(t.track_id for t in conf)
         ospa_t.append(ospa(states[:, :3], truth[:, :3], ospa_c_m, ospa_p))
         gospa_t.append(gospa(truth[:, :3], states[:, :3], ospa_c_m, ospa_p))
@@ -218,10 +218,10 @@ def run_metrics(
             tr = confirmed_of_scan[k][tid]
             matched_ids.add(tid)
             ids_per_target[tgt].add(tid)
-            e = np.asarray(tr.state_enu, dtype=np.float64) - true_states[k, tgt]
+            e = np.asarray(tr.estimate.mean, dtype=np.float64) - true_states[k, tgt]
             pos_sq[k] += float(e[:3] @ e[:3])
             vel_sq[k] += float(e[3:] @ e[3:])
-            nees[k] += float(e @ np.linalg.solve(np.asarray(tr.cov_enu, dtype=np.float64), e))
+            nees[k] += float(e @ np.linalg.solve(np.asarray(tr.estimate.covariance, dtype=np.float64), e))
             if tr.nis is not None:
                 nis[k] += tr.nis
                 n_nis[k] += 1

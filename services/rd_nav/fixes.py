@@ -13,6 +13,7 @@ import numpy as np
 
 from schemas import Header
 from schemas.rd_nav import RdNavFix
+from shared.estimates import HORIZONTAL, gaussian
 from shared.filters.covariance import symmetrize
 
 from .config import RdNavConfig
@@ -67,8 +68,8 @@ class FixBuilder:
             estimator=f.estimator,  # type: ignore[arg-type]
             kind=f.kind,  # type: ignore[arg-type]
             t_local_s=f.t_local_s,
-            position_ned_m=[float(f.x[0]), float(f.x[1]), float(state.depth_m if state.depth_m is not None else 0.0)],
-            cov_xy_m2=P.tolist(),
+            estimate=gaussian(cfg.frame_id, HORIZONTAL, [float(f.x[0]), float(f.x[1])], P.tolist()),
+            depth_m=float(state.depth_m if state.depth_m is not None else 0.0),
             status=f.status,  # type: ignore[arg-type]
             valid=state.initialised and f.status != "LOST",
             cycle_status=f.cycle_status,  # type: ignore[arg-type]

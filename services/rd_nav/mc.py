@@ -105,10 +105,8 @@ def _rows(fixes: list[RdNavFix], truth: _TruthTrack) -> list[tuple[float, ...]]:
         tr = truth.at(f.header.stamp_ns)
         if tr is None:
             continue
-        q = f.cov_xy_m2
-        rows.append(
-            (f.header.stamp_ns * 1e-9, f.position_ned_m[0], f.position_ned_m[1], q[0][0], q[0][1], q[1][1], *tr)
-        )
+        (x, y), q = f.estimate.mean, f.estimate.covariance
+        rows.append((f.header.stamp_ns * 1e-9, x, y, q[0][0], q[0][1], q[1][1], *tr))
     return rows
 
 

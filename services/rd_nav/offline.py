@@ -120,8 +120,8 @@ def run(
                 t = sim.time_of(m.header.stamp_ns)
                 tx, ty = sim.truth_xy(auv_id, t)
                 if m.kind == "CYCLE":
-                    q = m.cov_xy_m2
-                    row = (t, m.position_ned_m[0], m.position_ned_m[1], q[0][0], q[0][1], q[1][1], tx, ty)
+                    (x, y), q = m.estimate.mean, m.estimate.covariance
+                    row = (t, x, y, q[0][0], q[0][1], q[1][1], tx, ty)
                     if m.estimator == "PF":
                         log.pf.append(row)
                         log.cycle_status[m.cycle_status] += 1
@@ -130,8 +130,9 @@ def run(
                     else:
                         log.ekf.append(row)
                 else:
-                    err = float(np.hypot(m.position_ned_m[0] - tx, m.position_ned_m[1] - ty))
-                    tr = float(np.sqrt(m.cov_xy_m2[0][0] + m.cov_xy_m2[1][1]))
+                    (x, y), q = m.estimate.mean, m.estimate.covariance
+                    err = float(np.hypot(x - tx, y - ty))
+                    tr = float(np.sqrt(q[0][0] + q[1][1]))
                     log.propagated.append((t, err, tr, float(m.cycles_since_update), m.status))
             elif isinstance(m, TdoaCycle) and keep_messages:
                 log.cycles.append(m)

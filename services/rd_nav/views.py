@@ -1,18 +1,20 @@
 """rd_nav's outputs as Foxglove estimates (``Plugin.views``; :mod:`shared.foxglove.frames`).
 
-An ``RdNavFix`` is horizontal: ``position_ned_m`` with the 2x2 ``cov_xy_m2`` (rows x north, y east); its vertical
-variance is the nominal one.
+An ``RdNavFix`` is horizontal: its block holds x (north), y (east) and their 2x2 covariance; the vertical is the
+pressure depth ``depth_m`` with the nominal variance.
 """
 
 from __future__ import annotations
 
 from schemas.rd_nav import RdNavFix
-from shared.foxglove.frames import Estimate, FrameContext, cov2_enu
+from shared.foxglove.frames import NOMINAL_VERTICAL_VAR_M2, Estimate, FrameContext, gaussian_position
 
 
 def rd_fix(key: str, msg: RdNavFix, ctx: FrameContext) -> list[Estimate]:
-    pos = ctx.to_enu(msg.position_ned_m, "", axes="ned")
-    cov = cov2_enu(msg.cov_xy_m2, north_first=True)  # (x north, y east)
+    got = gaussian_position(msg.estimate, ctx, vertical=(msg.depth_m, NOMINAL_VERTICAL_VAR_M2))
+    if got is None:
+        return []
+    pos, cov, horizontal = got
     return [
         Estimate(
             "fix",
@@ -22,7 +24,7 @@ def rd_fix(key: str, msg: RdNavFix, ctx: FrameContext) -> list[Estimate]:
             pos,
             cov,
             msg.valid,
-            horizontal_only=True,
+            horizontal_only=horizontal,
             label=f"{msg.estimator} {msg.status}",
             extra={"estimator": msg.estimator, "kind": msg.kind, "cycle_status": msg.cycle_status},
         )

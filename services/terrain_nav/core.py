@@ -20,8 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from schemas import BaroAltitude, Header, InsSample, Message, NavReset, RadioAltimeter
-from schemas.terrain_nav import TerrainFix, TerrainVerdict
+from schemas.terrain_nav import MAP_HORIZONTAL, VERTICAL_CORRECTION, TerrainFix, TerrainVerdict
 from shared.errors import InputRejected
+from shared.estimates import gaussian
 
 from . import conditions as cond
 from .config import TerrainNavConfig
@@ -442,14 +443,10 @@ class TerrainNavigator:
             header=verdict.header,
             dx_m=f.dx_m,
             dz_m=f.dz_m,
-            x_corr_m=f.x_corr_m,
-            z_corr_m=f.z_corr_m,
-            cov_xz_m2=f.cov_xz_m2.tolist(),
-            dh_m=f.dh_m,
-            dvh_mps=f.dvh_mps,
+            estimate=gaussian(self.cfg.frame_id, MAP_HORIZONTAL, [f.x_corr_m, f.z_corr_m], f.cov_xz_m2.tolist()),
+            vertical=gaussian(self.cfg.frame_id, VERTICAL_CORRECTION, [f.dvh_mps, f.dh_m], f.cov_vert.tolist()),
             h_corr_m=f.h_corr_m,
             vh_corr_mps=f.vh_corr_mps,
-            cov_vert=f.cov_vert.tolist(),
             refined=f.refined,
             cov_degenerate=f.cov_degenerate,
             i_star=ev.i_star,

@@ -91,9 +91,10 @@ def score_run(outputs: Iterable[Message], flight: TruthSource, availability_s: f
     vert_err, vert_ratio_ok, vert_err_full = [], [], []
     for f in fixes:
         truth = flight.truth_at(f.header.stamp_ns * 1e-9)
-        e = abs(f.dh_m - truth["dh"])
+        dh = f.vertical.index("dh")
+        e = abs(f.vertical.mean[dh] - truth["dh"])
         vert_err.append(e)
-        vert_ratio_ok.append(e <= 3.0 * math.sqrt(f.cov_vert[1][1]))
+        vert_ratio_ok.append(e <= 3.0 * math.sqrt(f.vertical.covariance[dh][dh]))
         if f.verdict.n_valid >= f.verdict.n_max:
             vert_err_full.append(e)
     first = fixes[0] if fixes else None

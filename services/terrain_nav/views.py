@@ -1,32 +1,34 @@
 """terrain_nav's outputs as Foxglove estimates (``Plugin.views``; :mod:`shared.foxglove.frames`).
 
-A ``TerrainFix`` is the corrected position in the map frame (x north, z east, h up) with its horizontal
-covariance ``cov_xz_m2`` (rows x, z) and the vertical variance ``cov_vert[1][1]``; the vehicle is the fourth
-chunk of its key ``fixstream/fix/terrain/<vehicle>``.
+A ``TerrainFix`` is the corrected horizontal position (block ``estimate``, map frame: x north, z east) placed at
+the corrected altitude ``h_corr_m`` with the variance of the altitude correction (``vertical``, component
+``dh``); the vehicle is the fourth chunk of its key ``fixstream/fix/terrain/<vehicle>``.
 """
 
 from __future__ import annotations
 
 from schemas.terrain_nav import TerrainFix
-from shared.foxglove.frames import Estimate, FrameContext, cov2_enu
+from shared.foxglove.frames import Estimate, FrameContext, gaussian_position
 
 
 def terrain_fix(key: str, msg: TerrainFix, ctx: FrameContext) -> list[Estimate]:
     vehicle = key.split("/")[3] if key.count("/") >= 3 else "terrain"
-    pos = ctx.to_enu([msg.x_corr_m, msg.z_corr_m, msg.h_corr_m], "map")
-    cov = cov2_enu(msg.cov_xz_m2, north_first=True)  # (x north, z east)
-    cov[2, 2] = max(float(msg.cov_vert[1][1]), 0.0)
+    v = msg.vertical
+    dh = v.components.index("dh") if "dh" in v.components else len(v.mean) - 1
+    got = gaussian_position(msg.estimate, ctx, vertical=(msg.h_corr_m, max(float(v.covariance[dh][dh]), 0.0)))
+    if got is None:
+        return []
     return [
         Estimate(
             "fix",
             vehicle,
             vehicle,
             msg.header.stamp_ns,
-            pos,
-            cov,
+            got[0],
+            got[1],
             True,
             label=f"fix ({msg.i_star},{msg.j_star})",
-            extra={"dx_m": msg.dx_m, "dz_m": msg.dz_m, "dh_m": msg.dh_m},
+            extra={"dx_m": msg.dx_m, "dz_m": msg.dz_m, "dh_m": v.mean[dh]},
         )
     ]
 

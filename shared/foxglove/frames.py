@@ -20,6 +20,11 @@ The radar sites' positions come from the scenario's simulators whose parameters 
 ``site_position_m`` (attitude's radars); without a scenario they are taken at the origin. A covariance
 transforms with the same axis permutation and signs.
 
+Every fix and track carries its mean and covariance as a :class:`~schemas.estimate.GaussianEstimate` block;
+:func:`gaussian_position` reads the position of any block by its frame and the names of the frame's axes
+(``x``, ``y``, ``z``; ``x``, ``z``, ``h`` in ``map``): all three give a 3-D position, the two horizontal ones a
+horizontal position whose vertical the caller supplies (value and variance; nominal variance by default).
+
 The report (:mod:`tools.report`) plots these estimates against truth; the Foxglove conversion
 (:mod:`shared.foxglove.convert`) draws them as scene entities and map fixes.
 """
@@ -34,6 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from schemas import Fix, Message, Track, Truth
+from schemas.estimate import GaussianEstimate
 
 from ..plugins import view_converter
 
@@ -47,6 +53,16 @@ _AXES: dict[str, tuple[tuple[int, int, int], tuple[float, float, float]]] = {
     "en_depth": ((0, 1, 2), (1.0, 1.0, -1.0)),
     "map": ((1, 0, 2), (1.0, 1.0, 1.0)),  # [x north, z east, h up]: enu = [z, x, h]
     "nue": ((2, 0, 1), (1.0, 1.0, 1.0)),  # [x north, y up, z east]: enu = [z, x, y]
+}
+
+
+#: names of a frame's position components in the frame's axis order, and the index of its vertical axis
+_AXIS_NAMES: dict[str, tuple[tuple[str, str, str], int]] = {
+    "enu": (("x", "y", "z"), 2),
+    "ned": (("x", "y", "z"), 2),
+    "en_depth": (("x", "y", "z"), 2),
+    "map": (("x", "z", "h"), 2),
+    "nue": (("x", "y", "z"), 1),
 }
 
 
@@ -139,22 +155,50 @@ class Estimate:
 NOMINAL_VERTICAL_VAR_M2 = 1.0
 
 
-def cov2_enu(cov2: list[list[float]], north_first: bool) -> F64:
-    """A horizontal 2x2 covariance as 3x3 ENU (vertical nominal); ``north_first``: rows are (north, east)."""
-    c = np.asarray(cov2, dtype=np.float64)
-    if north_first:
-        c = c[::-1, ::-1]
+def gaussian_position(
+    est: GaussianEstimate, ctx: FrameContext, vertical: tuple[float, float] | None = None
+) -> tuple[F64, F64, bool] | None:
+    """(position, 3x3 covariance, horizontal only) of a block in scenario ENU; None if it has no position.
+
+    The position components are found by the names of the frame's axes (module doc). A block with the two
+    horizontal ones only is placed at ``vertical`` = (value along the frame's vertical axis, its variance),
+    by default (0, :data:`NOMINAL_VERTICAL_VAR_M2`); its covariance has no vertical cross terms."""
+    conv, _ = ctx.axes(est.frame)
+    names, iv = _AXIS_NAMES[conv]
+    comps = est.components
+    idx = [comps.index(n) if n in comps else -1 for n in names]
+    m = est.mean
+    if min(idx) >= 0:
+        pos = ctx.to_enu([m[idx[0]], m[idx[1]], m[idx[2]]], est.frame)
+        sub = np.asarray(est.covariance, dtype=np.float64)[np.ix_(idx, idx)]
+        return pos, ctx.cov_to_enu(sub, est.frame), False
+    hor = [i for k, i in enumerate(idx) if k != iv]
+    if min(hor) < 0:
+        return None
+    v, var = vertical if vertical is not None else (0.0, NOMINAL_VERTICAL_VAR_M2)
+    vec = [v, v, v]
+    for k, i in enumerate(idx):
+        if k != iv:
+            vec[k] = m[i]
+    pos = ctx.to_enu(vec, est.frame)
+    # the horizontal 2x2 in ENU order (east, north) taken by index: no product, so no value is rounded or
+    # given a signed zero; the horizontal axes of every frame keep their sign
+    perm, _sign = _AXES[conv]
+    c = np.asarray(est.covariance, dtype=np.float64)
     out = np.zeros((3, 3))
-    out[:2, :2] = c
-    out[2, 2] = NOMINAL_VERTICAL_VAR_M2
-    return out
+    src = [idx[perm[0]], idx[perm[1]]]
+    out[np.ix_([0, 1], [0, 1])] = c[np.ix_(src, src)]
+    out[2, 2] = var
+    return pos, out, True
 
 
 def estimates_of(key: str, msg: Message, ctx: FrameContext) -> list[Estimate]:
     """The positions a message carries, in scenario ENU (empty for messages that carry none).
 
     ``Truth`` and the generic ``Fix`` and ``Track`` are converted here; an estimator's own output types by the
-    converter its plugin declares for the type name (``Plugin.views``, :func:`shared.plugins.view_converter`)."""
+    converter its plugin declares for the type name (``Plugin.views``, :func:`shared.plugins.view_converter`); any
+    other message whose ``estimate`` is a Gaussian block with a position becomes one ``fix`` named after the last
+    chunk of its key (its ``platform`` if it has one), valid unless its ``valid`` says otherwise."""
     name = type(msg).__name__
     fn = _truth if name == "Truth" else view_converter(name)
     if fn is not None:
@@ -163,7 +207,21 @@ def estimates_of(key: str, msg: Message, ctx: FrameContext) -> list[Estimate]:
         return _fix(key, msg, ctx)
     if isinstance(msg, Track):
         return _track(key, msg, ctx)
+    block = getattr(msg, "estimate", None)
+    if isinstance(block, GaussianEstimate):
+        return _any_block(key, msg, block, ctx)
     return []
+
+
+def _any_block(key: str, msg: Any, block: GaussianEstimate, ctx: FrameContext) -> list[Estimate]:
+    got = gaussian_position(block, ctx)
+    if got is None:
+        return []
+    platform = getattr(msg, "platform", None)
+    entity = platform if isinstance(platform, str) else key.rsplit("/", 1)[-1]
+    valid = getattr(msg, "valid", True) is not False
+    stamp = msg.header.stamp_ns
+    return [Estimate("fix", entity, entity, stamp, got[0], got[1], valid, got[2], label=type(msg).__name__)]
 
 
 def _truth(key: str, msg: Any, ctx: FrameContext) -> list[Estimate]:
@@ -179,19 +237,35 @@ def _truth(key: str, msg: Any, ctx: FrameContext) -> list[Estimate]:
 
 
 def _fix(key: str, msg: Any, ctx: FrameContext) -> list[Estimate]:
-    f = msg.header.frame_id
-    pos = ctx.to_enu(msg.position_m, f)
-    cov = ctx.cov_to_enu(np.asarray(msg.position_cov_m2, dtype=np.float64), f)
-    out = [Estimate("fix", msg.platform, msg.platform, msg.header.stamp_ns, pos, cov, msg.valid, label=msg.status)]
-    for h in msg.hypotheses:
+    out: list[Estimate] = []
+    got = gaussian_position(msg.estimate, ctx)
+    if got is not None:
+        pos, cov, hor = got
+        stamp = msg.header.stamp_ns
+        out.append(Estimate("fix", msg.platform, msg.platform, stamp, pos, cov, msg.valid, hor, label=msg.status))
+    out.extend(hypothesis_estimates(msg.platform, msg.header.stamp_ns, msg.hypotheses, ctx))
+    return out
+
+
+def hypothesis_estimates(
+    platform: str, stamp_ns: int, hypotheses: Iterable[Any], ctx: FrameContext, valid: bool = True
+) -> list[Estimate]:
+    """The :class:`~schemas.outputs.Hypothesis` entries of a fix as ``hypothesis`` estimates."""
+    out = []
+    for h in hypotheses:
+        got = gaussian_position(h.estimate, ctx)
+        if got is None:
+            continue
         out.append(
             Estimate(
                 "hypothesis",
-                f"{msg.platform}/h{h.hypothesis_id}",
-                msg.platform,
-                msg.header.stamp_ns,
-                ctx.to_enu(h.position_m, f),
-                ctx.cov_to_enu(np.asarray(h.position_cov_m2, dtype=np.float64), f),
+                f"{platform}/h{h.hypothesis_id}",
+                platform,
+                stamp_ns,
+                got[0],
+                got[1],
+                valid,
+                got[2],
                 label=f"h{h.hypothesis_id} p={h.probability:.3f}",
                 extra={"probability": h.probability, "hypothesis_id": h.hypothesis_id},
             )
@@ -200,21 +274,31 @@ def _fix(key: str, msg: Any, ctx: FrameContext) -> list[Estimate]:
 
 
 def _track(key: str, msg: Any, ctx: FrameContext) -> list[Estimate]:
-    f = msg.header.frame_id
-    cov = np.asarray(msg.covariance, dtype=np.float64)[:3, :3]
+    got = gaussian_position(msg.estimate, ctx)
+    if got is None:
+        return []
     ent = f"{msg.tracker}/{msg.track_id}"
+    pos, cov, hor = got
     return [
         Estimate(
             "track",
             ent,
             None,
             msg.header.stamp_ns,
-            ctx.to_enu(msg.state[:3], f),
-            ctx.cov_to_enu(cov, f),
+            pos,
+            cov,
             msg.status != "DROPPED",
-            label=f"{msg.track_id} {msg.status}",
+            hor,
+            f"{msg.track_id} {msg.status}",
         )
     ]
 
 
-__all__ = ["NOMINAL_VERTICAL_VAR_M2", "Estimate", "FrameContext", "cov2_enu", "estimates_of"]
+__all__ = [
+    "NOMINAL_VERTICAL_VAR_M2",
+    "Estimate",
+    "FrameContext",
+    "estimates_of",
+    "gaussian_position",
+    "hypothesis_estimates",
+]

@@ -1,7 +1,7 @@
 """attitude (digest 004): heading, pitch and roll of every target against truth, per radar site.
 
 Per instance (``attitude/<site>``, estimates on ``fixstream/fix/attitude/<site>/<target>``): plan view of the
-targets (truth, filtered positions with 3σ ellipses of the position block of ``state_cov``, the radar), the
+targets (truth, filtered positions with 3σ ellipses of the ``estimate`` block's position, the radar), the
 error of the line-of-sight angles ψᴸ, ϑᴸ, γᴸ — the paper's metric (§3.3) — against time with the filter's ±3σ,
 the 3-D position NEES, and the angles ψ, ϑ, γ (earth frame) against the true ones. Errors are computed as the
 mc plugin computes them (:class:`services.attitude.metrics.RunRecorder`: wrapped estimate − truth at the truth

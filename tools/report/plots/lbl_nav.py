@@ -145,6 +145,6 @@ def _story(fixes: list[tuple[str, LblFix]], truth: Any) -> tuple[Any, dict[str, 
     if truth is not None and first_two is not None and decided is not None and decided.hypothesis_source == "resolved":
         p = truth.at(np.array([first_two.header.stamp_ns / 1e9]))[0]
         if np.all(np.isfinite(p)):
-            d = {h.hypothesis_id: math.dist(h.position_m[:2], p[:2]) for h in first_two.hypotheses}
+            d = {h.hypothesis_id: math.dist(h.estimate.mean[:2], p[:2]) for h in first_two.hypotheses}
             facts["correct"] = decided.accepted_hypothesis == min(d, key=lambda u: d[u])
     return render(fig, "Hypotheses, probabilities and resolution", "launch: first epoch with two ranges"), facts

@@ -2,7 +2,7 @@
 
 Per instance (one receiver–illuminator pair, ``PclScanReport`` per scan): every scan's confirmed tracks are
 matched to the live targets (least total distance within ``match_distance_m``, as the mc plugin does); each
-target's matched track gives an error series (east, north with ±3σ of ``cov_enu``) and a 3-D NEES. The story:
+target's matched track gives an error series (east, north with ±3σ of its ``estimate``) and a 3-D NEES. The story:
 each track's lifetime (tentative, confirmed, dropped; labelled with the target it followed) and the OSPA
 distance per scan (the mc plugin's figures when the scenario is known, else computed the same way). Headline:
 confirmed tracks, OSPA mean, steady-state position and velocity RMSE (second half of the run), id swaps and
@@ -70,7 +70,7 @@ def _section(data: RunData, source: str, entry: dict[str, Any] | None) -> Sectio
         t = float(scan_t[k])
         conf = [tr for tr in rep.tracks if tr.status == "CONFIRMED"]
         alive = [name for name in known if np.all(np.isfinite(tpos[name][k]))]
-        tp = np.array([tr.state_enu[:3] for tr in conf], dtype=np.float64).reshape(-1, 3)
+        tp = np.array([tr.estimate.mean[:3] for tr in conf], dtype=np.float64).reshape(-1, 3)
         gp = np.array([tpos[name][k] for name in alive], dtype=np.float64).reshape(-1, 3)
         if own_ospa:
             ospa_t.append(ospa(tp, gp, ospa_c, ospa_p))
@@ -84,9 +84,9 @@ def _section(data: RunData, source: str, entry: dict[str, Any] | None) -> Sectio
             per_target[name].append(
                 (
                     t,
-                    np.asarray(tr.state_enu, dtype=np.float64),
+                    np.asarray(tr.estimate.mean, dtype=np.float64),
                     gp[j],
-                    np.asarray(tr.cov_enu, dtype=np.float64),
+                    np.asarray(tr.estimate.covariance, dtype=np.float64),
                     truth_vel,
                 )
             )
@@ -117,7 +117,7 @@ def _section(data: RunData, source: str, entry: dict[str, Any] | None) -> Sectio
         if rows
     }
     unmatched = [
-        (np.asarray(tr.state_enu[:2]), np.asarray(tr.cov_enu)[:3, :3])
+        (np.asarray(tr.estimate.mean[:2]), np.asarray(tr.estimate.covariance)[:3, :3])
         for k, rep in enumerate(scans)
         for tr in rep.tracks
         if tr.status == "CONFIRMED" and (k, tr.track_id) not in matched
@@ -171,7 +171,7 @@ def _guess_targets(data: RunData, scans: list[PclScanReport], match_d: float) ->
     found: list[str] = []
     for rep in scans[:: max(1, len(scans) // 50)]:
         t = np.array([rep.header.stamp_ns / 1e9])
-        pts = [np.asarray(tr.state_enu[:3]) for tr in rep.tracks if tr.status == "CONFIRMED"]
+        pts = [np.asarray(tr.estimate.mean[:3]) for tr in rep.tracks if tr.status == "CONFIRMED"]
         for name, ts in data.truth.items():
             p = ts.at(t)[0]
             if name not in found and np.all(np.isfinite(p)) and any(np.linalg.norm(q - p) <= match_d for q in pts):

@@ -4,7 +4,7 @@ One section for the group: every ``rd_nav/<vehicle>`` instance (``RdNavFix``; th
 fixes are scored, ``kind = CYCLE``, ``estimator = PF``) and the coordinator's ``BeaconAssignment`` s (from any
 publisher, e.g. ``coordinator/<group>``, or the player when it feeds a fixed assignment). Plan view (every
 moving AUV's truth and fixes with 3σ ellipses, the beacon nodes of the assignments), north/east errors with
-±3σ of ``cov_xy_m2``, 2-D NEES, and the story: each vehicle's role over time (leader, follower, not a beacon)
+±3σ of the ``estimate`` block, 2-D NEES, and the story: each vehicle's role over time (leader, follower, not a beacon)
 and each moving AUV's cycle status (USED, PARTIAL, REJECTED, NONE). Headline per AUV: the paper's figures —
 mean, SD and max of the per-coordinate error — and cycles by status.
 """

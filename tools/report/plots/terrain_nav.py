@@ -1,7 +1,7 @@
 """terrain_nav (digest 001): corrected positions against truth, and which of C1–C4 held at each evaluation.
 
 Per instance (``terrain_nav/<instance>``, vehicle from its keys ``fixstream/fix/terrain/<vehicle>[/verdict]``):
-plan view (truth, INS-indicated track, fixes with 3σ ellipses of ``cov_xz_m2``), error of the corrected
+plan view (truth, INS-indicated track, fixes with 3σ ellipses of the ``estimate`` block), error of the corrected
 position (east = transverse z, north = longitudinal x) with ±3σ, 2-D NEES, and the verdicts: the four
 condition flags and the state word over time. Headline: fixes, first fix, the error in cells and false fixes
 (from the mc plugin's metrics when the scenario is known), verdict states, horizontal RMS and NEES.
