@@ -49,9 +49,9 @@ def test_the_paper_preset_is_the_digest_configuration() -> None:
     assert TerrainNavConfig().c3_floor is None and TerrainNavConfig(preset="paper") == TerrainNavConfig()
     robust = TerrainNavConfig(preset="robust")
     assert robust.c3_floor == 0.5 and TerrainNavConfig(preset="robust", c3_floor=0.25).c3_floor == 0.25
-    assert robust.model_dump(exclude={"preset", "c3_floor"}) == TerrainNavConfig().model_dump(
-        exclude={"preset", "c3_floor"}
-    )
+    assert robust.vertical_slope_term and not TerrainNavConfig(preset="paper").vertical_slope_term
+    robust_only = {"preset", "c3_floor", "vertical_slope_term"}
+    assert robust.model_dump(exclude=robust_only) == TerrainNavConfig(preset="paper").model_dump(exclude=robust_only)
 
 
 @pytest.mark.parametrize("heading_deg", [30.0, 135.0, 250.0])
