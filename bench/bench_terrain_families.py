@@ -125,7 +125,12 @@ def turning_path(sc: FlightScenario, rng: np.random.Generator):  # type: ignore[
 
 
 def run_family(
-    fam: Family, runs: int, seed0: int, presets: list[str], on_run: Callable[[dict[str, Tally]], None] | None = None
+    fam: Family,
+    runs: int,
+    seed0: int,
+    presets: list[str],
+    on_run: Callable[[dict[str, Tally]], None] | None = None,
+    posterior: bool = True,
 ) -> dict[str, dict[str, Any]]:
     """Score ``runs`` flights of ``fam`` with each preset; ``on_run`` sees the tallies after every run."""
     tallies = {p: Tally() for p in presets}
@@ -142,13 +147,13 @@ def run_family(
         msgs = list(flight.messages())
         for preset in presets:
             cfg = TerrainNavConfig(preset=preset)  # type: ignore[arg-type]
-            score_run(flight, msgs, cfg, tallies[preset], fam.turn)
+            score_run(flight, msgs, cfg, tallies[preset], fam.turn, posterior)
         if on_run is not None:
             on_run(tallies)
     return {p: t.row() for p, t in tallies.items()}
 
 
-def score_run(flight, msgs, cfg: TerrainNavConfig, t: Tally, turn: bool) -> None:  # type: ignore[no-untyped-def]
+def score_run(flight, msgs, cfg: TerrainNavConfig, t: Tally, turn: bool, posterior: bool = True) -> None:  # type: ignore[no-untyped-def]
     nav = TerrainNavigator(flight.world.ref_map, cfg)
     cell = flight.cell_m
     t.runs += 1
@@ -181,7 +186,7 @@ def score_run(flight, msgs, cfg: TerrainNavConfig, t: Tally, turn: bool) -> None
                     t.vert_in += 1
                 if m.verdict.n_valid >= m.verdict.n_max:
                     t.vert_err_full.append(abs(m.dh_m - d["dh"]))
-            elif getattr(m, "c1_enough_data", False) and m.state != "RESET":
+            elif posterior and getattr(m, "c1_enough_data", False) and m.state != "RESET":
                 post = exact_posterior(list(nav.window.measq), nav.map, cfg, nav.D1)
                 newest = nav.window.measq[-1]
                 d = flight.truth_at(newest.t)
@@ -213,6 +218,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=16)
     ap.add_argument("--family", action="append", help="only families whose name starts with this")
     ap.add_argument("--preset", action="append", choices=["paper", "robust"], help="default: both")
+    ap.add_argument("--no-posterior", action="store_true", help="skip the exact posterior (5-10x faster)")
     ap.add_argument("--out", default=None, help="JSON file, rewritten after every run (a partial run is kept)")
     a = ap.parse_args(argv)
     out: dict[str, Any] = {}
@@ -231,7 +237,7 @@ def main(argv: list[str] | None = None) -> int:
             out[name] = {p: t.row() for p, t in tallies.items()}
             dump()
 
-        out[fam.name] = run_family(fam, a.runs, a.seed, a.preset or ["paper", "robust"], on_run)
+        out[fam.name] = run_family(fam, a.runs, a.seed, a.preset or ["paper", "robust"], on_run, not a.no_posterior)
         for preset, row in out[fam.name].items():
             print(
                 f"{fam.name:28s} {preset:7s} avail {row['availability']:.3f} fixes {row['fixes']:5d} "
