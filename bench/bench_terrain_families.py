@@ -14,7 +14,8 @@
 
 Families: Hurst exponent (roughness), von Karman correlation length, relief (RMS adjacent-cell change),
 a low-relief map, a coarse partly flat map (2.4 km cells, mountains on one side and a plain on the other)
-and a turning flight (waypoints). Two presets: ``paper`` (the digest's §6) and ``robust`` (C3 floor).
+and a turning flight (waypoints). Presets: ``paper`` (the digest's §6) and ``robust`` (C3 floor, slope term); a
+preset may carry options after ``+``: ``robust+refine`` (``refine: true``), ``robust+mu2=0.5`` (JSON values).
 """
 
 from __future__ import annotations
@@ -146,7 +147,9 @@ def run_family(
         flight = simulate_flight(sc, world, np.random.default_rng(f_seq), path)
         msgs = list(flight.messages())
         for preset in presets:
-            cfg = TerrainNavConfig(preset=preset)  # type: ignore[arg-type]
+            name, *opts = preset.split("+")
+            kv = [o.split("=", 1) if "=" in o else [o, "true"] for o in opts]
+            cfg = TerrainNavConfig.model_validate({"preset": name, **{k: json.loads(v) for k, v in kv}})
             score_run(flight, msgs, cfg, tallies[preset], fam.turn, posterior)
         if on_run is not None:
             on_run(tallies)
@@ -217,7 +220,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--runs", type=int, default=40)
     ap.add_argument("--seed", type=int, default=16)
     ap.add_argument("--family", action="append", help="only families whose name starts with this")
-    ap.add_argument("--preset", action="append", choices=["paper", "robust"], help="default: both")
+    ap.add_argument("--preset", action="append", help="paper, robust, robust+refine, ... (default: paper and robust)")
     ap.add_argument("--no-posterior", action="store_true", help="skip the exact posterior (5-10x faster)")
     ap.add_argument("--out", default=None, help="JSON file, rewritten after every run (a partial run is kept)")
     a = ap.parse_args(argv)
@@ -240,7 +243,7 @@ def main(argv: list[str] | None = None) -> int:
         out[fam.name] = run_family(fam, a.runs, a.seed, a.preset or ["paper", "robust"], on_run, not a.no_posterior)
         for preset, row in out[fam.name].items():
             print(
-                f"{fam.name:28s} {preset:7s} avail {row['availability']:.3f} fixes {row['fixes']:5d} "
+                f"{fam.name:28s} {preset:14s} avail {row['availability']:.3f} fixes {row['fixes']:5d} "
                 f"false {row['false_fixes']:3d} (ub95 {row['false_rate_ub95']:.4f}, runs {row['runs_with_false']}, "
                 f">1.5 {row['over_1_5_cells']}, worst {row['worst_cells']:.2f}) "
                 f"post ok {row['posterior_decisive_correct']:.3f} "
