@@ -16,9 +16,10 @@ PRESETS: dict[str, dict[str, Any]] = {
     # the digest's configuration (§6), every acceptance test of §4 is run with it
     "paper": {},
     # the paper's algorithm with the corrections of docs/terrain_nav.md: C3's near-minimum region floored at the
-    # residual level the model expects ("False fixes on coarse and partly flat maps") and the slope term of the
-    # vertical channel's P_hh ("The vertical channel over smooth terrain")
-    "robust": {"c3_floor": 0.5, "vertical_slope_term": True},
+    # residual level the model expects ("False fixes on coarse and partly flat maps"), the slope term of the
+    # vertical channel ("The vertical channel over smooth terrain") and the sub-cell refinement of §2.6 with a
+    # sigma floor of 0.3 cell (one-cell slips on low relief and coarse maps, "Terrain families")
+    "robust": {"c3_floor": 0.5, "vertical_slope_term": True, "refine": True, "refine_sigma_floor_cells": 0.3},
 }
 
 
