@@ -39,19 +39,20 @@ def test_the_c3_floor_blocks_the_false_fix_of_a_coarse_partly_flat_map() -> None
     world = coarse_partly_flat_world(25, np.random.default_rng(1025))
     sc = FlightScenario(cell_m=2400.0, start_cell=(30, 55), rate_hz=2.0, sigma_da_mps2=1e-5)
     flight = simulate_flight(sc, world, np.random.default_rng(25))
-    paper = _errors(flight, run_flight(flight, TerrainNavConfig()))
+    paper = _errors(flight, run_flight(flight, TerrainNavConfig(preset="paper")))
     robust = _errors(flight, run_flight(flight, TerrainNavConfig(preset="robust")))
     assert max(paper) > 10.0  # the failure the issue reports (here 24 cells)
     assert robust and max(robust) <= 1.0  # the robust preset still fixes this flight, and only correctly
 
 
-def test_the_paper_preset_is_the_digest_configuration() -> None:
-    assert TerrainNavConfig().c3_floor is None and TerrainNavConfig(preset="paper") == TerrainNavConfig()
+def test_the_paper_preset_is_the_digest_configuration_and_robust_the_default() -> None:
+    assert TerrainNavConfig(preset="paper").c3_floor is None and TerrainNavConfig(preset="robust") == TerrainNavConfig()
     robust = TerrainNavConfig(preset="robust")
     assert robust.c3_floor == 0.5 and TerrainNavConfig(preset="robust", c3_floor=0.25).c3_floor == 0.25
-    assert robust.model_dump(exclude={"preset", "c3_floor"}) == TerrainNavConfig().model_dump(
-        exclude={"preset", "c3_floor"}
-    )
+    assert robust.vertical_slope_term and not TerrainNavConfig(preset="paper").vertical_slope_term
+    assert robust.refine and robust.refine_sigma_floor_cells == 0.3 and not TerrainNavConfig(preset="paper").refine
+    robust_only = {"preset", "c3_floor", "vertical_slope_term", "refine", "refine_sigma_floor_cells"}
+    assert robust.model_dump(exclude=robust_only) == TerrainNavConfig(preset="paper").model_dump(exclude=robust_only)
 
 
 @pytest.mark.parametrize("heading_deg", [30.0, 135.0, 250.0])

@@ -38,6 +38,7 @@ from services.terrain_nav.simulation import (
 )
 from shared.service import InputRejected
 
+PAPER = TerrainNavConfig(preset="paper")  # every acceptance test runs the digest's configuration (§6)
 SC = FlightScenario()  # the digest's common harness: informative fBm, 200 x 101 cells of 125 m, 20 Hz, 200 m/s
 CELL_TIME_S = 125.0 / 200.0
 N_MAX_TIME_S = 64 * CELL_TIME_S  # 40 s
@@ -64,7 +65,7 @@ class Run:
     base: dict[str, Any] | None = None
 
 
-def _runs(sc: FlightScenario, seeds: range, cfg: TerrainNavConfig | None = None, base: bool = False) -> list[Run]:
+def _runs(sc: FlightScenario, seeds: range, cfg: TerrainNavConfig = PAPER, base: bool = False) -> list[Run]:
     out = []
     for seed in seeds:
         fl = simulate(sc, seed)
@@ -199,11 +200,11 @@ def _at1_sweep(world_seeds: range, onsets: list[float], amplitudes: tuple[float,
                     update={"failures": (FailureSpec(kind="additive", onset_s=onset, duration_s=3.0, amplitude_m=amp),)}
                 )
                 fl = simulate_flight(sc, world, np.random.default_rng(f_seed))  # same flight, only the failure moves
-                b = score_run(run_flight(fl, algorithm="base", stop_at_first_fix=True).outputs, fl)
+                b = score_run(run_flight(fl, PAPER, "base", stop_at_first_fix=True).outputs, fl)
                 e = b["first_fix_error_cells"]
                 if e is None or max(abs(e[0]), abs(e[1])) <= 3.0:
                     continue
-                m = score_run(run_flight(fl).outputs, fl)
+                m = score_run(run_flight(fl, PAPER).outputs, fl)
                 broken.append((ws, amp, onset, e, m["first_fix_s"], m["max_abs_error_cells"]))
                 modified_bad += m["n_false_fixes"] > 0
                 if m["first_fix_s"] is not None and m["first_fix_s"] < b["first_fix_s"]:
@@ -279,7 +280,7 @@ def _failure_runs(
             }
         )
         fl = simulate(sc, seed)
-        res = run_flight(fl)
+        res = run_flight(fl, PAPER)
         m = score_run(res.outputs, fl)
         t_end = sc.t0_s + onset + 3.0
         after = [

@@ -25,6 +25,8 @@ from shared.service import InputRejected
 
 SC = FlightScenario()
 
+PAPER = TerrainNavConfig(preset="paper")  # the digest's configuration: these tests check the digest's algorithm
+
 
 @pytest.fixture(scope="module")
 def flight() -> SimulatedFlight:
@@ -61,7 +63,7 @@ def _hdr(t: float) -> Header:
 
 
 def test_one_verdict_per_group_and_a_fix_after_each_valid_verdict(flight: SimulatedFlight) -> None:
-    nav = TerrainNavigator(flight.world.ref_map)
+    nav = TerrainNavigator(flight.world.ref_map, PAPER)
     out, rejected = _feed(nav, list(flight.messages()))
     assert not rejected
     verdicts = [m for m in out if isinstance(m, TerrainVerdict)]
@@ -91,14 +93,14 @@ def test_one_verdict_per_group_and_a_fix_after_each_valid_verdict(flight: Simula
 
 
 def test_same_input_gives_the_same_output(flight: SimulatedFlight) -> None:
-    a = run_flight(flight).outputs
-    b = run_flight(flight).outputs
+    a = run_flight(flight, PAPER).outputs
+    b = run_flight(flight, PAPER).outputs
     assert a == b and len(a) > 10
 
 
 def test_checkpoint_by_pickle_continues_identically(flight: SimulatedFlight) -> None:
     msgs = list(flight.messages())
-    nav = TerrainNavigator(flight.world.ref_map)
+    nav = TerrainNavigator(flight.world.ref_map, PAPER)
     half = len(msgs) // 2
     _feed(nav, msgs[:half])
     clone = pickle.loads(pickle.dumps(nav))
@@ -112,7 +114,7 @@ def test_checkpoint_by_pickle_continues_identically(flight: SimulatedFlight) -> 
 
 def test_bad_inputs_are_rejected_and_leave_the_state_unchanged(flight: SimulatedFlight) -> None:
     msgs = list(flight.messages())
-    nav = TerrainNavigator(flight.world.ref_map)
+    nav = TerrainNavigator(flight.world.ref_map, PAPER)
     _feed(nav, msgs[:800])  # well into the flight
     last_ins = next(m for m in reversed(msgs[:800]) if isinstance(m, InsSample))
     last_t = last_ins.header.stamp_ns * 1e-9
@@ -157,7 +159,7 @@ def test_bad_inputs_are_rejected_and_leave_the_state_unchanged(flight: Simulated
 def test_ins_gap_gives_a_gap_verdict_and_drops_unsynchronisable_ra(flight: SimulatedFlight) -> None:
     sc = SC.model_copy(update={"failures": (FailureSpec(kind="ins_gap", onset_s=30.0, duration_s=1.0),)})
     fl = simulate(sc, 7)
-    nav = TerrainNavigator(fl.world.ref_map)
+    nav = TerrainNavigator(fl.world.ref_map, PAPER)
     out, rejected = _feed(nav, list(fl.messages()))
     gaps = [m for m in out if isinstance(m, TerrainVerdict) and m.state == "GAP"]
     assert len(gaps) == 1 and gaps[0].header.stamp_ns == fl.stamp_ns(round(31.0 * 20))
@@ -172,7 +174,7 @@ def test_ins_gap_gives_a_gap_verdict_and_drops_unsynchronisable_ra(flight: Simul
 def test_out_of_zone_verdicts_at_most_once_per_second() -> None:
     sc = SC.model_copy(update={"start_cell": (10, 50), "offset_max_cells": 2.0, "duration_s": 10.0})
     fl = simulate(sc, 3)
-    out, rejected = _feed(TerrainNavigator(fl.world.ref_map), list(fl.messages()))
+    out, rejected = _feed(TerrainNavigator(fl.world.ref_map, PAPER), list(fl.messages()))
     assert not rejected
     ooz = [m for m in out if isinstance(m, TerrainVerdict)]
     assert all(v.state == "OUT_OF_ZONE" and not v.valid for v in ooz)  # the zone starts at cell 25
@@ -182,7 +184,7 @@ def test_out_of_zone_verdicts_at_most_once_per_second() -> None:
 
 def test_nav_reset_clears_the_estimator_but_keeps_the_map(flight: SimulatedFlight) -> None:
     msgs = list(flight.messages())
-    nav = TerrainNavigator(flight.world.ref_map)
+    nav = TerrainNavigator(flight.world.ref_map, PAPER)
     _feed(nav, msgs[:900])
     assert nav.N_valid > 0
     t = msgs[899].header.stamp_ns * 1e-9
@@ -205,7 +207,7 @@ def test_long_gap_resets_the_window(flight: SimulatedFlight) -> None:
             update={"map_cells": (400, 101), "failures": (FailureSpec(kind="dropout", onset_s=30.0, duration_s=dur),)}
         )
         fl = simulate(sc, 8)
-        nav = TerrainNavigator(fl.world.ref_map)
+        nav = TerrainNavigator(fl.world.ref_map, PAPER)
         _feed(nav, list(fl.messages()))
         results[dur] = nav.counters["window_resets"]
     assert results == {30.0: 0, 45.0: 1}
@@ -236,14 +238,14 @@ def _cell_measurements(fl: SimulatedFlight, n: int) -> list[CellMeasurement]:
 def test_at11_grouping_gives_identical_states_and_f(flight: SimulatedFlight) -> None:
     meas = _cell_measurements(flight, 128)
     ref = flight.world.ref_map
-    nav1 = TerrainNavigator(ref, TerrainNavConfig(N_p=1))
+    nav1 = TerrainNavigator(ref, TerrainNavConfig(preset="paper", N_p=1))
     snaps = []
     for m in meas:
         nav1.push_measurement(dataclasses.replace(m))
         snaps.append((nav1.bank.x.copy(), nav1.F.copy(), nav1.N_valid))
     assert nav1.n_evaluations == 128
     for N_p in (2, 4, 8):
-        nav = TerrainNavigator(ref, TerrainNavConfig(N_p=N_p))
+        nav = TerrainNavigator(ref, TerrainNavConfig(preset="paper", N_p=N_p))
         evaluated_at = []
         for k, m in enumerate(meas):
             if nav.push_measurement(dataclasses.replace(m)):
@@ -260,7 +262,7 @@ def test_at11_grouping_gives_identical_states_and_f(flight: SimulatedFlight) -> 
 
 
 def test_at14_window_stores_at_most_ceil_nmax_over_ns_plus_two_arrays(flight: SimulatedFlight) -> None:
-    cfg = TerrainNavConfig()
+    cfg = PAPER
     nav = TerrainNavigator(flight.world.ref_map, cfg)
     base = BaseRecurrentSearch(flight.world.ref_map, cfg)
     most = 0
@@ -286,8 +288,8 @@ def test_baro_altitude_source_uses_the_baro_stream(flight: SimulatedFlight) -> N
         with_baro.append(m)
         if isinstance(m, InsSample):  # a baro altitude equal to the INS one, 0.0 s later
             with_baro.append(BaroAltitude(header=m.header, h_baro_m=m.h_m))
-    ins_run, _ = _feed(TerrainNavigator(flight.world.ref_map), msgs)
-    baro_cfg = TerrainNavConfig(altitude_source="baro")
+    ins_run, _ = _feed(TerrainNavigator(flight.world.ref_map, PAPER), msgs)
+    baro_cfg = TerrainNavConfig(preset="paper", altitude_source="baro")
     baro_run, rejected = _feed(TerrainNavigator(flight.world.ref_map, baro_cfg), with_baro)
     assert not rejected
     fa = [m for m in ins_run if isinstance(m, TerrainFix)]
@@ -307,14 +309,14 @@ def test_pre_gate_is_off_by_default_and_gates_spikes_when_on() -> None:
         update={"failures": (FailureSpec(kind="additive", onset_s=20.0, duration_s=3.0, amplitude_m=150.0),)}
     )
     fl = simulate(sc, 4)
-    off = run_flight(fl)
+    off = run_flight(fl, PAPER)
     assert off.navigator.counters["gated"] == 0
-    on = run_flight(fl, TerrainNavConfig(pre_gate_k=4.0))
+    on = run_flight(fl, TerrainNavConfig(preset="paper", pre_gate_k=4.0))
     assert 3 <= on.navigator.counters["gated"] <= 6  # the ~5 cells crossed during the 3 s spike
 
 
 def test_refinement_flags_fixes_and_keeps_them_accurate(flight: SimulatedFlight) -> None:
-    res = run_flight(flight, TerrainNavConfig(refine=True))
+    res = run_flight(flight, TerrainNavConfig(preset="paper", refine=True))
     fixes = res.fixes
     assert fixes and all(f.refined for f in fixes)
     errs = np.array([fix_errors_cells(f, flight) for f in fixes])
@@ -329,19 +331,23 @@ def test_refinement_beats_the_cell_centre_estimate() -> None:
     plain, refined = [], []
     for seed in range(20, 26):
         fl = simulate(SC, seed)
-        plain += [fix_errors_cells(f, fl) for f in run_flight(fl).fixes]
-        refined += [fix_errors_cells(f, fl) for f in run_flight(fl, TerrainNavConfig(refine=True)).fixes]
+        plain += [fix_errors_cells(f, fl) for f in run_flight(fl, PAPER).fixes]
+        refined += [
+            fix_errors_cells(f, fl) for f in run_flight(fl, TerrainNavConfig(preset="paper", refine=True)).fixes
+        ]
     rms = [float(np.sqrt(np.mean(np.square(e)))) for e in (plain, refined)]
     assert rms[1] < 0.6 * rms[0], rms
 
 
 def test_derived_n_limits_follow_the_recipe(flight: SimulatedFlight) -> None:
-    cfg = TerrainNavConfig(derive_profiles=60)
+    cfg = TerrainNavConfig(preset="paper", derive_profiles=60)
     N_min, N_max = derive_n_limits(flight.world.ref_map, cfg, n_cap=48)
     assert 8 <= N_min <= 40
     assert N_max == min(4 * N_min, math.floor(200.0 / (4 * 0.3)))
     assert n_max_from(10, cfg) == 40 and n_max_from(50, cfg) == 166
-    nav = TerrainNavigator(flight.world.ref_map, TerrainNavConfig(derive_n_limits=True, derive_profiles=40))
+    nav = TerrainNavigator(
+        flight.world.ref_map, TerrainNavConfig(preset="paper", derive_n_limits=True, derive_profiles=40)
+    )
     assert 8 <= nav.N_min <= 64 and nav.N_max == n_max_from(nav.N_min, cfg)
     flat = simulate(SC.model_copy(update={"terrain": "flat"}), 1)
     with pytest.raises(ValueError, match="not informative"):
@@ -370,7 +376,7 @@ def test_scoring_from_truth_messages_matches_scoring_from_the_flight(flight: Sim
 
     msgs = list(flight.messages(include_truth=True, truth_every=1))
     truths = [m for m in msgs if isinstance(m, Truth)]
-    outputs, _ = _feed(TerrainNavigator(flight.world.ref_map), msgs)
+    outputs, _ = _feed(TerrainNavigator(flight.world.ref_map, PAPER), msgs)
     a = score_run(outputs, flight)
     b = score_run(outputs, TruthTrack(truths, 125.0))
     assert a["n_fixes"] == b["n_fixes"] > 0
@@ -384,7 +390,7 @@ def test_named_scenarios_simulate_and_run(name: str) -> None:
 
     sc = SCENARIOS[name]
     fl = simulate(sc, 1)
-    res = run_flight(fl)
+    res = run_flight(fl, PAPER)
     assert res.verdicts and set(res.rejected) <= {"ra_invalid", "non_finite", "unsynchronised"}
     for f in res.fixes:
         assert max(abs(e) for e in fix_errors_cells(f, fl)) <= 1.5

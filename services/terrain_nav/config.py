@@ -15,29 +15,32 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 PRESETS: dict[str, dict[str, Any]] = {
     # the digest's configuration (§6), every acceptance test of §4 is run with it
     "paper": {},
-    # the paper's algorithm with the correction of docs/terrain_nav.md ("False fixes on coarse and partly
-    # flat maps"): C3's near-minimum region floored at the residual level the model expects
-    "robust": {"c3_floor": 0.5},
+    # the paper's algorithm with the corrections of docs/terrain_nav.md: C3's near-minimum region floored at the
+    # residual level the model expects ("False fixes on coarse and partly flat maps"), the slope term of the
+    # vertical channel ("The vertical channel over smooth terrain") and the sub-cell refinement of §2.6 with a
+    # sigma floor of 0.3 cell (one-cell slips on low relief and coarse maps, "Terrain families")
+    "robust": {"c3_floor": 0.5, "vertical_slope_term": True, "refine": True, "refine_sigma_floor_cells": 0.3},
 }
 
 
 class TerrainNavConfig(BaseModel):
     """Configuration of :class:`services.terrain_nav.core.TerrainNavigator` (and the base algorithm).
 
-    ``preset`` fills the parameters it names (``PRESETS``) unless they are given explicitly: ``paper`` (the
-    default) is the digest's configuration, ``robust`` adds the corrections against false fixes over
-    inhomogeneous (partly flat, coarse) maps.
+    ``preset`` fills the parameters it names (``PRESETS``) unless they are given explicitly: ``robust`` (the
+    default) adds to the digest's algorithm the corrections against false fixes over inhomogeneous (partly flat,
+    coarse) maps and the slope term of the vertical channel; ``paper`` is the digest's configuration (§6), the
+    one every acceptance test of §4 runs (docs/terrain_nav.md, "The default preset").
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    preset: Literal["paper", "robust"] = Field(default="paper", description="paper (digest §6) or robust")
+    preset: Literal["paper", "robust"] = Field(default="robust", description="robust (default) or paper (digest §6)")
 
     @model_validator(mode="before")
     @classmethod
     def _apply_preset(cls, data: Any) -> Any:
         if isinstance(data, dict):
-            preset = data.get("preset", "paper")
+            preset = data.get("preset", "robust")
             if preset in PRESETS:
                 return {**PRESETS[preset], **data}
         return data
@@ -89,6 +92,13 @@ class TerrainNavConfig(BaseModel):
     P0_sigma_a: float = Field(default=0.01, gt=0.0, description="initial sigma of da, m/s^2 [D]")
     P0_sigma_V: float = Field(default=1.0, gt=0.0, description="initial sigma of dV, m/s [D]")
     P0_sigma_h: float = Field(default=100.0, gt=0.0, description="initial sigma of dh, m [D]")
+    vertical_slope_term: bool = Field(
+        default=False,
+        description="a fix's dh and P_hh at the fix's position: the dh of a hypothesis is that of the cell "
+        "centres, off by g.e where the aircraft is e from them (g the window's mean map slope at the fix's "
+        "cells); report P_hh + g^T Cov_xz g and, for a refined fix moved by d from the centres, dh + g.d "
+        "(the paper: neither) [robust]",
+    )
     normalize_by_S: bool = Field(  # noqa: N815 - the digest's option name
         default=False, description="accumulate nu^2 * R_k/S_k instead of nu^2 (paper: raw nu^2) [D]"
     )

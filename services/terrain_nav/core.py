@@ -29,7 +29,7 @@ from .config import TerrainNavConfig
 from .filter import KalmanBank
 from .geometry import F64, HypothesisGrid
 from .maps import ReferenceMap
-from .models import measurement_variance
+from .models import mean_slope, measurement_variance
 from .output import cell_centre_terms, grid_covariance, refine
 from .resampler import CellMeasurement, CellResampler
 from .sync import SyncedSample, Synchroniser
@@ -379,6 +379,7 @@ class TerrainNavigator:
         dx = i_star * ref.cell_m + cx
         dz = j_star * ref.cell_m + cz
         cov, degenerate = grid_covariance(self.window.F, a, b, n_valid, D_thr, ref.cell_m)
+        dx0, dz0 = dx, dz
         refined = False
         if cfg.refine:
             r = refine(measq, ref, cfg, self.D1, dx, dz)
@@ -390,6 +391,13 @@ class TerrainNavigator:
         s = self.bank.x[:, a, b]
         P = self.bank.P
         dh, dvh = float(s[2]), float(s[1])
+        cov_vert = np.array([[P[1, 1], P[1, 2]], [P[2, 1], P[2, 2]]])
+        if cfg.vertical_slope_term:
+            # dh is the altitude error at the cell centres: move it to the fix's position and add the slope times
+            # the position's uncertainty (models.py)
+            g = mean_slope(measq, ref, i_star, j_star)
+            dh += float(g[0] * (dx - dx0) + g[1] * (dz - dz0))
+            cov_vert[1, 1] += float(g @ cov @ g)
         return FixData(
             dx_m=dx,
             dz_m=dz,
@@ -400,7 +408,7 @@ class TerrainNavigator:
             dvh_mps=dvh,
             h_corr_m=newest.h_ins + dh,
             vh_corr_mps=newest.vh_ins + dvh if newest.vh_ins is not None else None,
-            cov_vert=np.array([[P[1, 1], P[1, 2]], [P[2, 1], P[2, 2]]]),
+            cov_vert=cov_vert,
             refined=refined,
             cov_degenerate=degenerate,
         )

@@ -44,6 +44,7 @@ class ReferenceMap:
     D1_m2: float = field(init=False)
     sigma_t2_m2: float = field(init=False)
     _zones: dict[tuple[int, int], Bool] = field(init=False, default_factory=dict, repr=False)
+    _slope: tuple[F64, F64] | None = field(init=False, default=None, repr=False)
 
     def __post_init__(self) -> None:
         dem = np.array(self.dem, dtype=np.float64)
@@ -84,6 +85,17 @@ class ReferenceMap:
         if key not in self._zones:
             self._zones[key] = window_all(~self.void, -M_x, M_x + 1, -M_z, M_z + 1)
         return self._zones[key]
+
+    def slope(self) -> tuple[F64, F64]:
+        """Terrain slope (dH/dx, dH/dz) per cell, m/m: central differences, one-sided at the edges, NaN next to a
+        void. Computed on first use and cached."""
+        if self._slope is None:
+            gx: F64 = np.gradient(self.dem, self.cell_m, axis=0)
+            gz: F64 = np.gradient(self.dem, self.cell_m, axis=1)
+            gx.setflags(write=False)
+            gz.setflags(write=False)
+            self._slope = (gx, gz)
+        return self._slope
 
     def L_zk(self, source: Literal["D1", "sigma_t2"] = "D1") -> float:
         """Correction-zone parameter L_zk (§2.12): D1 (default) or the terrain variance, m^2."""
