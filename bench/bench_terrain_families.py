@@ -189,7 +189,7 @@ def score_run(flight, msgs, cfg: TerrainNavConfig, t: Tally, turn: bool, posteri
                 if abs(m.vertical.mean[dh] - d["dh"]) <= 3.0 * math.sqrt(m.vertical.covariance[dh][dh]):
                     t.vert_in += 1
                 if m.verdict.n_valid >= m.verdict.n_max:
-                    t.vert_err_full.append(abs(m.dh_m - d["dh"]))
+                    t.vert_err_full.append(abs(m.vertical.mean[dh] - d["dh"]))
             elif posterior and getattr(m, "c1_enough_data", False) and m.state != "RESET":
                 post = exact_posterior(list(nav.window.measq), nav.map, cfg, nav.D1)
                 newest = nav.window.measq[-1]

@@ -21,10 +21,10 @@ from hypothesis import strategies as st
 from scipy.stats import binom
 
 from services.terrain_nav.config import TerrainNavConfig
-from services.terrain_nav.harness import run_flight
 from services.terrain_nav.maps import ReferenceMap
 from services.terrain_nav.metrics import fix_errors_cells
 from services.terrain_nav.models import mean_slope
+from services.terrain_nav.offline import run_flight
 from services.terrain_nav.resampler import CellMeasurement
 from services.terrain_nav.simulation import FlightScenario, SimulatedFlight, make_world, simulate_flight
 from services.terrain_nav.worlds import coarse_partly_flat_world
@@ -71,7 +71,8 @@ def _tally(family: str, runs: int, cfg: TerrainNavConfig) -> Tally:
             t.false += e > 1.0
             t.worst = max(t.worst, e)
             dh_true = fl.truth_at(f.header.stamp_ns * 1e-9)["dh"]
-            t.vert_in += abs(f.dh_m - dh_true) <= 3.0 * math.sqrt(f.cov_vert[1][1])
+            dh = f.vertical.index("dh")
+            t.vert_in += abs(f.vertical.mean[dh] - dh_true) <= 3.0 * math.sqrt(f.vertical.covariance[dh][dh])
     return t
 
 
