@@ -46,7 +46,7 @@ from services.player.simulators import (
     child_rng,
     register,
 )
-from services.player.simulators.recorded_track import RecordedTrack, TrackFileParams
+from services.player.simulators.recorded_track import TrackFileParams, load_cached
 from shared import keys
 
 from .maps import ReferenceMap, load_map
@@ -347,7 +347,7 @@ def flight_setup(
         )
         return sc, path
     if params.track is not None:
-        track = _load_track(params.track)
+        track = load_cached(params.track)
         return sc, paths.track_path(track, ref, params.rate_hz, cap, params.track_altitude)
     if params.terrain_file is not None and params.start_cell is None:
         zone = ref.zone_mask(params.stop_half_width_cells, params.stop_half_width_cells)
@@ -358,11 +358,6 @@ def flight_setup(
     elif params.terrain_file is not None:
         sc = sc.model_copy(update={"cell_m": ref.cell_m})
     return sc, None
-
-
-@functools.lru_cache(maxsize=8)
-def _load_track(track: TrackFileParams) -> RecordedTrack:
-    return RecordedTrack.load(track)
 
 
 class FlightTruth:

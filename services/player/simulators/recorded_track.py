@@ -384,16 +384,6 @@ def load_cached(params: TrackFileParams) -> RecordedTrack:
         raise ValueError(str(exc)) from None
 
 
-def epoch_times(track: RecordedTrack, period_s: float, first_s: float | None = None) -> F64:
-    """Times ``first + k * period`` (default first: the track's start) inside the recorded span, s."""
-    t0 = track.start_s if first_s is None else first_s
-    if t0 > track.end_s:
-        return np.zeros(0)
-    n = math.floor((track.end_s - t0) / period_s + 1e-9) + 1
-    out: F64 = t0 + period_s * np.arange(n, dtype=np.float64)
-    return out[out <= track.end_s + 1e-9 * max(1.0, abs(track.end_s))]
-
-
 def write_track_csv(path: str | Path, t_s: F64, columns: dict[str, F64], comment: str = "", precision: int = 9) -> Path:
     """Write a track file (CSV): ``t_s`` then the given columns, one row per time; ``comment`` as ``#`` lines."""
     p = Path(path)
