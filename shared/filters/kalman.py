@@ -40,7 +40,7 @@ from typing import Literal, cast
 import numpy as np
 from numpy.typing import NDArray
 
-from .covariance import Floats, symmetrize
+from .covariance import Floats, symmetrize, transpose
 
 FloatArray = NDArray[np.float64]
 #: residual(z, Hx) -> y; the default is z - Hx, an angle-aware one wraps some components
@@ -48,8 +48,7 @@ Residual = Callable[[FloatArray, FloatArray], FloatArray]
 Form = Literal["joseph", "standard"]
 
 
-def _T(A: Floats) -> FloatArray:
-    return cast(FloatArray, np.swapaxes(A, -1, -2))
+_T = transpose
 
 
 def matvec(A: Floats, v: Floats) -> FloatArray:
