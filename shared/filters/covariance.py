@@ -28,7 +28,8 @@ Floats = NDArray[np.floating[Any]]
 
 def symmetrize(P: Floats) -> FloatArray:
     """(P + P^T) / 2 over the last two axes (one matrix or a batch)."""
-    return cast(FloatArray, 0.5 * (P + transpose(P)))
+    out: FloatArray = 0.5 * (P + transpose(P))
+    return out
 
 
 def transpose(A: Floats) -> FloatArray:

@@ -62,7 +62,7 @@ def predict(
     x: Floats, P: Floats, F: Floats, Q: Floats, b: Floats | None = None, symmetrise: bool = True
 ) -> tuple[FloatArray, FloatArray]:
     """x <- F x (+ b), P <- sym(F P F^T + Q) (:func:`predict_covariance`)."""
-    x_new = matvec(F, x)
+    x_new = F @ x if x.ndim == 1 else matvec(F, x)  # matvec's one-vector case, without its call
     if b is not None:
         x_new = x_new + b
     return x_new, predict_covariance(P, F, Q, symmetrise)
@@ -71,7 +71,7 @@ def predict(
 def predict_covariance(P: Floats, F: Floats, Q: Floats, symmetrise: bool = True) -> FloatArray:
     """P <- sym(F P F^T + Q), products left to right. ``symmetrise=False`` leaves the rounding's asymmetry in
     place: for a prediction that an update (which symmetrises its result) follows at once."""
-    P_new = cast(FloatArray, F @ P @ _T(F) + Q)
+    P_new: FloatArray = F @ P @ _T(F) + Q
     return symmetrize(P_new) if symmetrise else P_new
 
 
@@ -135,7 +135,8 @@ def nis_solve(y: Floats, S: Floats) -> float:
 def det_3x3(S: Floats) -> float:
     """det S of one 3x3 matrix by the rule of Sarrus (expanded along the first row)."""
     (a, b, c), (d, e, f), (g, h, i) = S.tolist()
-    return cast(float, a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g))
+    det: float = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    return det
 
 
 _LOG_2PI = math.log(2.0 * math.pi)
