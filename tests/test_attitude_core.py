@@ -12,10 +12,11 @@ from schemas import Header, RadarPlot, RadarSite, TrackEnd
 from schemas.attitude import AttitudeEstimate
 from services.attitude.config import AttitudeConfig
 from services.attitude.core import AttitudeCore
-from services.attitude.filter import is_positive_definite, predict
+from services.attitude.filter import predict
 from services.attitude.initiation import quadratic_state
 from services.attitude.simulation import NS, FlightPlan, fly, measure, paper_plan, scan_times, true_spherical
 from shared import codec
+from shared.filters.covariance import is_cholesky_factorable
 from shared.service import InputRejected
 
 T = 5.0
@@ -139,7 +140,7 @@ def assert_unchanged(core: AttitudeCore, before, target="t1") -> None:
     after = core.snapshot(target)
     assert same_state(before, after)
     if after.p is not None:
-        assert np.array_equal(after.p, after.p.T) and is_positive_definite(after.p)
+        assert np.array_equal(after.p, after.p.T) and is_cholesky_factorable(after.p)
 
 
 @pytest.mark.parametrize(
@@ -404,7 +405,7 @@ def test_outputs_follow_the_contract_and_round_trip_the_codec() -> None:
             assert back == o
             if o.estimate is not None:
                 p = np.array(o.estimate.covariance)
-                assert np.array_equal(p, p.T) and is_positive_definite(p)
+                assert np.array_equal(p, p.T) and is_cholesky_factorable(p)
         last = out[-1]
         assert 0.0 <= last.psi_deg < 360.0 and -180.0 < last.psi_los_deg <= 180.0
         assert last.raw is not None and last.raw.psi_los_deg is not None

@@ -15,19 +15,20 @@ from filterpy.kalman import KalmanFilter
 
 from services.attitude.angles import AngleConventions, angle_block, angle_jacobian, angles_of_states, attitude_angles
 from services.attitude.config import AttitudeConfig, MeasurementSigmas
-from services.attitude.filter import is_positive_definite, predict, update
+from services.attitude.filter import predict, update
 from services.attitude.geometry import (
     body_axes,
     conversion_jacobian,
     convert_plot,
     los_matrix,
     spherical_to_cartesian,
-    wrap_deg_180,
 )
 from services.attitude.initiation import fsf_design, fsf_estimate, quadratic_state
 from services.attitude.models import H_POS, jerk_input, process_noise, transition, transition_axis
 from services.attitude.offline import monte_carlo_size
 from services.attitude.simulation import coordinated_roll, fly, paper_plan
+from shared.filters.angles import wrap_deg_180
+from shared.filters.covariance import is_cholesky_factorable
 
 D2R = math.pi / 180.0
 EPS0 = math.asin(0.05)
@@ -130,7 +131,7 @@ def test_u4_fsf_weighted_least_squares_with_more_plots_is_exact_on_quadratic_dat
     alpha, cov = fsf_estimate(times - times[-1], zs, rs)
     truth = state(tuple(zs[-1]), tuple(v0 + a0 * times[-1]), tuple(a0))
     assert alpha == pytest.approx(truth, rel=1e-9, abs=1e-6)
-    assert np.array_equal(cov, cov.T) and is_positive_definite(cov)
+    assert np.array_equal(cov, cov.T) and is_cholesky_factorable(cov)
 
 
 def test_u4_fsf_covariance_closed_form_uniform_t() -> None:
@@ -407,7 +408,7 @@ def test_kalman_filter_matches_filterpy() -> None:
         x, p, nis = update(x_pred, p_pred, z, rz)
         assert x == pytest.approx(np.ravel(kf.x), rel=1e-9, abs=1e-6)
         assert p == pytest.approx(kf.P, rel=1e-7, abs=1e-9 * np.abs(kf.P).max())
-        assert np.array_equal(p, p.T) and is_positive_definite(p)
+        assert np.array_equal(p, p.T) and is_cholesky_factorable(p)
         s = kf.S
         nu = z - np.ravel(kf.x_prior)[[0, 3, 6]]
         assert nis == pytest.approx(float(nu @ np.linalg.solve(s, nu)), rel=1e-9)
@@ -418,8 +419,8 @@ def test_update_rejects_non_positive_definite_innovation() -> None:
     p = np.zeros((9, 9))
     with pytest.raises(np.linalg.LinAlgError):
         update(x, p, np.ones(3), -np.eye(3))
-    assert not is_positive_definite(-np.eye(9))
-    assert not is_positive_definite(np.full((9, 9), np.nan))
+    assert not is_cholesky_factorable(-np.eye(9))
+    assert not is_cholesky_factorable(np.full((9, 9), np.nan))
 
 
 def test_config_presets_and_defaults() -> None:

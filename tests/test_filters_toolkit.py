@@ -299,3 +299,97 @@ def test_gauss_markov_path_statistics() -> None:
     rho = float(np.corrcoef(x[:-1], x[1:])[0, 1])
     assert abs(rho - a) < 5 * (1 - a * a) / math.sqrt(n)
     assert gauss_markov.path(np.random.default_rng(0), 0, 1.0, 1.0, 1.0).size == 0
+
+
+# ---------------------------------------------------------------- forms added for the attitude estimator
+@st.composite
+def selection_case(draw: st.DrawFn) -> tuple[np.ndarray, np.ndarray, np.ndarray, slice, np.ndarray]:
+    """An n-state (3..10) with a 3-D measurement of the components idx = start::step (H = I[idx])."""
+    step = draw(st.integers(1, 3))
+    n = draw(st.integers(2 * step + 1, 10))
+    start = draw(st.integers(0, n - 1 - 2 * step))
+    idx = slice(start, start + 3 * step, step)
+    x = draw(arrays(np.float64, n, elements=unit))
+    z = draw(arrays(np.float64, 3, elements=unit))
+    return x, draw(spd(n)), z, idx, draw(spd(3))
+
+
+@given(selection_case())
+@settings(max_examples=150, deadline=None)
+def test_update_selection_matches_filterpy(case: tuple[np.ndarray, np.ndarray, np.ndarray, slice, np.ndarray]) -> None:
+    x, P, z, idx, R = case
+    H = np.eye(x.size)[idx]
+    assert H.shape == (3, x.size)
+    xf, Pf, yf, _, Sf, _ = fp_update(x, P, z, R, H, return_all=True)
+    xk, Pk, yk, nis = kalman.update_selection(x, P, z, idx, R)
+    close(xk, xf)
+    close(Pk, Pf)
+    close(yk, yf)
+    close(nis, yf @ np.linalg.inv(Sf) @ yf)
+    np.testing.assert_array_equal(Pk, Pk.T)  # symmetric to the bit
+    xj, Pj, _, _ = kalman.update(x, P, z, H, R)  # the general Joseph update, up to rounding
+    close(xk, xj)
+    close(Pk, Pj)
+
+
+@given(spd(3), arrays(np.float64, 3, elements=unit))
+@settings(max_examples=100, deadline=None)
+def test_whitening_nis_and_likelihood_of_a_3d_innovation(S: np.ndarray, y: np.ndarray) -> None:
+    W = kalman.whitening_3x3(S)
+    np.testing.assert_array_equal(W, np.tril(W))
+    close(W @ S @ W.T, np.eye(3))  # W = L^-1: W S W^T = I
+    close(kalman.nis_solve(y, S), y @ np.linalg.inv(S) @ y)
+    close(kalman.det_3x3(S), np.linalg.det(S))
+    close(kalman.log_likelihood_3(kalman.nis_solve(y, S), S), logpdf(y, cov=S))
+
+
+def test_whitening_refuses_a_matrix_that_is_not_positive_definite() -> None:
+    for S in (np.diag([1.0, -1.0, 1.0]), np.diag([0.0, 1.0, 1.0]), np.full((3, 3), np.nan), np.ones((3, 3))):
+        with pytest.raises(np.linalg.LinAlgError):
+            kalman.whitening_3x3(S)
+
+
+@given(kf_case(), st.data())
+@settings(max_examples=100, deadline=None)
+def test_unsymmetrised_prediction(case: tuple[np.ndarray, ...], data: st.DataObject) -> None:
+    """symmetrise=False returns F P F^T + Q before the symmetrisation: symmetrising it gives predict's P to the bit."""
+    x, P, _, _, _ = case
+    n = x.size
+    F = data.draw(arrays(np.float64, (n, n), elements=unit))
+    Q = data.draw(spd(n))
+    xs, Ps = kalman.predict(x, P, F, Q)
+    xu, Pu = kalman.predict(x, P, F, Q, symmetrise=False)
+    np.testing.assert_array_equal(xu, xs)
+    np.testing.assert_array_equal(covariance.symmetrize(Pu), Ps)
+    _, Pf = fp_predict(x, P, F, Q)
+    close(Pu, Pf)
+    np.testing.assert_array_equal(kalman.predict_covariance(P, F, Q, symmetrise=False), Pu)
+
+
+@given(finite_angle)
+def test_wrap_pi_shifted(a: float) -> None:
+    """(-pi, pi], congruent to a; the [-pi, pi) formula except that -pi becomes pi."""
+    w = float(angles.wrap_pi_shifted(a))
+    assert -math.pi < w <= math.pi
+    k = (a - w) / (2 * math.pi)
+    assert abs(k - round(k)) * 2 * math.pi <= 8 * np.finfo(float).eps * max(1.0, abs(a)) + 1e-15
+    left = float(angles.wrap_pi_left(a))
+    assert w == (math.pi if left == -math.pi else left)
+
+
+def test_wrap_pi_shifted_end_points() -> None:
+    assert float(angles.wrap_pi_shifted(math.pi)) == math.pi
+    assert float(angles.wrap_pi_shifted(-math.pi)) == math.pi
+    assert float(angles.wrap_pi_shifted(3 * math.pi)) == math.pi
+    np.testing.assert_array_equal(angles.wrap_pi_shifted(np.array([0.0, -0.5])), [0.0, -0.5])
+
+
+@given(arrays(np.float64, (4, 4), elements=unit), st.floats(-2.0, 2.0))
+def test_is_cholesky_factorable(A: np.ndarray, shift: float) -> None:
+    """Agrees with the eigenvalue test away from the margin (min eigenvalue not within 1e-9 of 0)."""
+    P = A @ A.T + shift * np.eye(4)
+    lam = float(np.linalg.eigvalsh(P).min())
+    assume(abs(lam) > 1e-9)
+    assert covariance.is_cholesky_factorable(P) == (lam > 0.0) == covariance.is_positive_definite(P)
+    P[1, 2] = np.nan
+    assert not covariance.is_cholesky_factorable(P)

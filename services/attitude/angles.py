@@ -14,7 +14,9 @@ from typing import Literal
 
 import numpy as np
 
-from .geometry import F64, TWO_PI, wrap_pi
+from shared.filters.angles import TWO_PI, wrap_pi_shifted
+
+from .geometry import F64
 
 ANGLES: tuple[str, ...] = (
     "psi",
@@ -213,7 +215,7 @@ def angle_jacobian(
     if extra is not None:
         batch[19:] = extra
     vals, kin = angles_of_states(batch, conv, los_dir)
-    diff = wrap_pi(vals[1:10] - vals[10:19])  # (9, N_ANGLES)
+    diff = wrap_pi_shifted(vals[1:10] - vals[10:19])  # (9, N_ANGLES)
     jac = (diff / (2.0 * h)[:, None]).T
     return vals[0], jac, (vals[19:] if extra is not None else None), kin
 

@@ -23,11 +23,12 @@ from schemas.attitude import CA_STATE, AttitudeEstimate, AttitudeFlag, AttitudeS
 from schemas.base import Header, StrictModel
 from shared.errors import InputRejected
 from shared.estimates import gaussian
+from shared.filters.covariance import is_cholesky_factorable
 
 from . import imm
 from .angles import IDX, N_ANGLES, AngleConventions, angle_block, angle_jacobian
 from .config import AttitudeConfig, MeasurementSigmas
-from .filter import is_positive_definite, predict, update
+from .filter import predict, update
 from .geometry import F64, cartesian_to_spherical, convert_plot
 from .initiation import fsf_condition, fsf_estimate, quadratic_state
 
@@ -272,7 +273,7 @@ class AttitudeCore:
         beta = (az % 360.0) * _D2R
         eps = el * _D2R
         z, rz = convert_plot(r, beta, eps, s_r, s_az * _D2R, s_el * _D2R)
-        if not (np.isfinite(z).all() and is_positive_definite(rz)):  # e.g. 1 m away near the zenith, huge sigmas
+        if not (np.isfinite(z).all() and is_cholesky_factorable(rz)):  # e.g. 1 m away near the zenith, huge sigmas
             raise self._reject("degenerate_plot", f"{plot.target_id}: converted covariance not positive definite")
         los_dir = (beta, eps) if cfg.los_dir_source == "measured" else None
         period_ns = site.scan_period_s * NS
@@ -332,7 +333,7 @@ class AttitudeCore:
             x, p = fsf_estimate(taus, zs, rs)
         except np.linalg.LinAlgError:
             return False
-        if not (np.isfinite(x).all() and is_positive_definite(p)):
+        if not (np.isfinite(x).all() and is_cholesky_factorable(p)):
             return False
         tr.x, tr.p, tr.t_ns = x, p, t_ref
         tr.n_updates = len(tr.buffer)
@@ -372,7 +373,7 @@ class AttitudeCore:
             return None
         if cfg.nis_gate is not None and not nis <= cfg.nis_gate and self._gate_failed(tr, t, z, rz, nis, flags):
             return None
-        if not (np.isfinite(x).all() and is_positive_definite(p)):
+        if not (np.isfinite(x).all() and is_cholesky_factorable(p)):
             tr.restart(t, z, rz)
             flags.append("COVARIANCE_RESET")
             self.counters["reset_covariance"] += 1
@@ -427,7 +428,7 @@ class AttitudeCore:
                 g = math.nan
             if not g <= cfg.nis_gate and self._gate_failed(tr, t, z, rz, g, flags):
                 return None
-        if res is None or not (np.isfinite(res.x).all() and is_positive_definite(res.p)):
+        if res is None or not (np.isfinite(res.x).all() and is_cholesky_factorable(res.p)):
             tr.restart(t, z, rz)
             flags.append("COVARIANCE_RESET")
             self.counters["reset_covariance"] += 1

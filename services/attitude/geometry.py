@@ -12,27 +12,9 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from shared.filters.angles import TWO_PI
+
 F64 = NDArray[np.float64]
-
-TWO_PI = 2.0 * math.pi
-
-
-def wrap_pi(a: F64 | float) -> F64:
-    """Wrap angles (rad) into (-pi, pi]."""
-    w = np.asarray(np.mod(np.asarray(a, dtype=np.float64) + math.pi, TWO_PI) - math.pi)
-    return np.where(w == -math.pi, math.pi, w)
-
-
-def wrap_2pi(a: F64 | float) -> F64:
-    """Wrap angles (rad) into [0, 2 pi)."""
-    w = np.mod(np.asarray(a, dtype=np.float64), TWO_PI)
-    return np.where(w >= TWO_PI, 0.0, w)
-
-
-def wrap_deg_180(a: F64 | float) -> F64:
-    """Wrap angles (deg) into (-180, 180]."""
-    w = np.asarray(np.mod(np.asarray(a, dtype=np.float64) + 180.0, 360.0) - 180.0)
-    return np.where(w == -180.0, 180.0, w)
 
 
 def spherical_to_cartesian(r_m: float, beta_rad: float, eps_rad: float) -> F64:

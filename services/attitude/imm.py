@@ -51,12 +51,13 @@ from functools import lru_cache
 
 import numpy as np
 
+from shared.filters import kalman
+from shared.filters.covariance import symmetrize
+
 from .config import MotionModel
 from .filter import update
 from .geometry import F64
 from .models import OMEGA, POS, block_diagonal, ct_predict, ct_step, process_noise, singer_axis, transition, turn_rate
-
-_LOG_2PI = math.log(2.0 * math.pi)
 
 
 @lru_cache(maxsize=1024)
@@ -168,7 +169,7 @@ def combine(xs: F64, ps: F64, mu: F64) -> tuple[F64, F64]:
     x = mu @ xs
     d = xs - x
     p = np.einsum("j,jkl->kl", mu, ps) + (d.T * mu) @ d
-    return x, 0.5 * (p + p.T)
+    return x, symmetrize(p)
 
 
 def mix(state: ImmState, pi: F64) -> tuple[F64, F64, F64]:
@@ -196,12 +197,11 @@ def predict(state: ImmState, models: tuple[MotionModel, ...], dt_s: float) -> tu
                 xp[j], pp[j] = ct_predict(x0[j], p0[j], float(dt_s), model.sigma_accel_mps2, model.tau_s, model.q_omega)
             else:
                 xp[j], f, q = ct_step(x0[j], float(dt_s), model.sigma_accel_mps2, model.tau_s, model.q_omega)
-                pp[j] = f @ p0[j] @ f.T + q
+                pp[j] = kalman.predict_covariance(p0[j], f, q, symmetrise=False)
             continue
         f, q = model_matrices(model, float(dt_s))
         if x0.shape[1] == 9:
-            xp[j] = f @ x0[j]
-            pp[j] = f @ p0[j] @ f.T + q
+            xp[j], pp[j] = kalman.predict(x0[j], p0[j], f, q, symmetrise=False)
         else:  # the implied turn rate is carried along unchanged and re-derived after the update
             xp[j, :9] = f @ x0[j, :9]
             xp[j, 9] = x0[j, 9]
@@ -244,7 +244,7 @@ def update_models(
     loglik = np.empty(m)
     for j in range(m):
         xs[j], ps[j], nis_j[j] = update(xp[j], pp[j], z, rz)
-        loglik[j] = -0.5 * (nis_j[j] + math.log(_det3((pp[j][POS, POS] + rz).tolist())) + 3.0 * _LOG_2PI)
+        loglik[j] = kalman.log_likelihood_3(nis_j[j], pp[j][POS, POS] + rz)
     if models is not None:
         _augment_models(xs, ps, models)
     lw = loglik + np.log(np.maximum(c, 1e-300))
@@ -254,14 +254,8 @@ def update_models(
     x, p = combine(xs, ps, mu)
     x_bar, p_bar = combine(xp, pp, c)
     nu = z - x_bar[POS]
-    nis = float(nu @ np.linalg.solve(p_bar[POS, POS] + rz, nu))
+    nis = kalman.nis_solve(nu, p_bar[POS, POS] + rz)
     return ImmUpdate(ImmState(xs, ps, mu), x, p, nis, nis_j, loglik)
-
-
-def _det3(s: list[list[float]]) -> float:
-    """Determinant of a 3x3 matrix (rule of Sarrus); S is positive definite here (the update's Cholesky passed)."""
-    (a, b, c), (d, e, f), (g, h, i) = s
-    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
 
 
 def step(state: ImmState, models: tuple[MotionModel, ...], dt_s: float, z: F64, rz: F64) -> ImmUpdate:
@@ -277,5 +271,5 @@ def gate_nis(xp: F64, pp: F64, z: F64, rz: F64, widen_m: float) -> float:
     best = math.inf
     for j in range(xp.shape[0]):
         nu = z - xp[j][POS]
-        best = min(best, float(nu @ np.linalg.solve(pp[j][POS, POS] + rz + widen, nu)))
+        best = min(best, kalman.nis_solve(nu, pp[j][POS, POS] + rz + widen))
     return best

@@ -1,6 +1,7 @@
 """Finite-sample filter (FSF) start, eq. (2) [RECON], and the raw sliding-window baseline (§2.6).
 
-alpha_n = R_n H_n^T Q_theta theta_n,  Q_n = R_n^-1 = H_n^T Q_theta H_n, with the reference time at the latest
+alpha_n = R_n H_n^T Q_theta theta_n,  Q_n = R_n^-1 = H_n^T Q_theta H_n (R_n: the state covariance, P in the code and
+the toolkit's notation, see filter.py), with the reference time at the latest
 plot (tau_i = t_i - t_n) [CHOICE: the only one that lets the KF continue]. With n = 3 plots and 9 states H_n is
 square and the FSF is an exact quadratic interpolation through the three converted plots.
 """
@@ -10,6 +11,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+
+from shared.filters.covariance import symmetrize
 
 from .geometry import F64
 
@@ -35,7 +38,8 @@ def fsf_estimate(taus_s: Sequence[float] | F64, zs: F64, rs: F64) -> tuple[F64, 
         rs: their covariances R_i, m^2, shape (n, 3, 3).
 
     Returns:
-        (alpha_n, R_n): the 9-state estimate at the reference time and its covariance (symmetrised).
+        (alpha_n, P_n): the 9-state estimate at the reference time and its covariance R_n of eq. (2)
+        (symmetrised).
     """
     h = fsf_design(taus_s)
     n = h.shape[0] // 3
@@ -46,12 +50,11 @@ def fsf_estimate(taus_s: Sequence[float] | F64, zs: F64, rs: F64) -> tuple[F64, 
         lower = np.linalg.cholesky(rs[i])
         a[3 * i : 3 * i + 3] = np.linalg.solve(lower, h[3 * i : 3 * i + 3])
         b[3 * i : 3 * i + 3] = np.linalg.solve(lower, zs[i])
-    # least squares through QR: alpha = argmin |A alpha - b|, R_n = (A^T A)^-1 = U^-1 U^-T
+    # least squares through QR: alpha = argmin |A alpha - b|, P_n = (A^T A)^-1 = U^-1 U^-T
     q, u = np.linalg.qr(a, mode="reduced")
     alpha = np.linalg.solve(u, q.T @ b)
     u_inv = np.linalg.solve(u, np.eye(9))
-    r_n = u_inv @ u_inv.T
-    return alpha, 0.5 * (r_n + r_n.T)
+    return alpha, symmetrize(u_inv @ u_inv.T)
 
 
 def fsf_condition(taus_s: Sequence[float] | F64) -> float:

@@ -11,6 +11,8 @@ from functools import lru_cache
 import numpy as np
 from scipy.linalg import expm
 
+from shared.filters.covariance import symmetrize
+
 from .geometry import F64
 
 #: position, velocity and acceleration components of the axis-blocked state (basic slices: views, no copies)
@@ -50,7 +52,7 @@ def process_noise(dt_s: float, d_a: tuple[float, float, float]) -> F64:
     """Random-manoeuvre matrix M = S^T D_a S (9x9) [RECON of the OCR's "M=S'SD"]; D_a = diag(D_x, D_y, D_z)."""
     s = jerk_input(dt_s)
     m = (s.T * np.asarray(d_a, dtype=np.float64)) @ s
-    return 0.5 * (m + m.T)
+    return symmetrize(m)
 
 
 def singer_axis(dt_s: float, sigma_accel_mps2: float, tau_s: float) -> tuple[F64, F64]:
@@ -80,7 +82,7 @@ def singer_axis(dt_s: float, sigma_accel_mps2: float, tau_s: float) -> tuple[F64
     for _ in range(n - 1):
         f = f_h @ f
         q = f_h @ q @ f_h.T + q_h
-    return f, 0.5 * (q + q.T)
+    return f, symmetrize(q)
 
 
 #: longest step of one Van Loan exponential in :func:`singer_axis`, s
@@ -198,7 +200,7 @@ def ct_process_noise(x: F64, dt_s: float, sigma_accel_mps2: float, tau_s: float,
     q[6, :] /= k  # back from omega' to omega: Q = D Q' D, D = diag(1, .., 1, 1 / k)
     q[:, 6] /= k
     out = np.zeros((10, 10))
-    out[_H7IX] = 0.5 * (q + q.T)
+    out[_H7IX] = symmetrize(q)
     out[_VIX] = _singer_cached(dt, sigma_accel_mps2, tau_s)[1]
     return out
 
@@ -316,4 +318,4 @@ def ct_predict(x: F64, p: F64, dt_s: float, sigma_accel_mps2: float, tau_s: floa
     pp[OMEGA, :9] = cross
     pp[OMEGA, OMEGA] = s2
     pp += q
-    return xp, 0.5 * (pp + pp.T)
+    return xp, symmetrize(pp)

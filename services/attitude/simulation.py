@@ -19,6 +19,7 @@ import numpy.typing as npt
 from scipy.integrate import solve_ivp
 
 from schemas import Header, Message, RadarPlot, Truth
+from shared.filters import gauss_markov
 
 from .config import MeasurementSigmas
 from .geometry import F64
@@ -72,8 +73,8 @@ class Wander:
         t = np.arange(n, dtype=np.float64) * self.step_s
         rng = np.random.default_rng(self.seed)
         sig = np.array([self.sigma_lat_mps2, self.sigma_vert_mps2, self.sigma_long_mps2])
-        phi = math.exp(-self.step_s / self.tau_s)
-        e = rng.standard_normal((n, 3)) * sig * math.sqrt(1.0 - phi * phi)
+        phi, q1 = gauss_markov.discretise(self.step_s, self.tau_s, 1.0)  # unit variance: sig scales the draws
+        e = rng.standard_normal((n, 3)) * sig * math.sqrt(q1)
         a = np.empty((n, 3))
         a[0] = rng.standard_normal(3) * sig  # stationary start
         for k in range(1, n):

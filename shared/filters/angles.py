@@ -1,10 +1,12 @@
 """Angle wrapping, radians unless the name says degrees.
 
-Two conventions for the principal interval exist in the estimators, and both are kept (the formula decides the
+Three formulas for the principal interval exist in the estimators, and all are kept (the formula decides the
 last bit of every wrapped value):
 
 * :func:`wrap_pi` -> (-pi, pi]:  ``pi - ((pi - a) mod 2 pi)``  (bearings, azimuths, innovations)
 * :func:`wrap_pi_left` -> [-pi, pi): ``((a + pi) mod 2 pi) - pi``  (error statistics of the player)
+* :func:`wrap_pi_shifted` -> (-pi, pi]: ``((a + pi) mod 2 pi) - pi`` with -pi mapped to pi  (the attitude
+  estimator's angle differences; the radian form of :func:`wrap_deg_180`)
 
 ``np.mod`` returns a value in [0, 2 pi) up to one rounding, so a result may land on the excluded end point
 (-pi for :func:`wrap_pi`, pi for :func:`wrap_pi_left`) when ``a`` is within an ulp of it.
@@ -30,6 +32,12 @@ def wrap_pi_left(a: ArrayLike) -> FloatArray:
     """Wrap angles (rad) to [-pi, pi): ((a + pi) mod 2 pi) - pi."""
     out: FloatArray = np.mod(np.asarray(a, dtype=np.float64) + np.pi, TWO_PI) - np.pi
     return out
+
+
+def wrap_pi_shifted(a: ArrayLike) -> FloatArray:
+    """Wrap angles (rad) to (-pi, pi]: ((a + pi) mod 2 pi) - pi, with -pi mapped to pi."""
+    w = wrap_pi_left(a)
+    return np.where(w == -np.pi, np.pi, w)
 
 
 def wrap_2pi(a: ArrayLike) -> FloatArray:

@@ -13,7 +13,9 @@ eigenvalues: ``D = V sqrt(max(w, 0))`` with ``P = V diag(w) V^T`` (digest 003 §
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cache
 from typing import Any, cast
 
 import numpy as np
@@ -26,12 +28,38 @@ Floats = NDArray[np.floating[Any]]
 
 def symmetrize(P: Floats) -> FloatArray:
     """(P + P^T) / 2 over the last two axes (one matrix or a batch)."""
-    return cast(FloatArray, 0.5 * (P + np.swapaxes(P, -1, -2)))
+    out: FloatArray = 0.5 * (P + transpose(P))
+    return out
+
+
+def transpose(A: Floats) -> FloatArray:
+    """A^T over the last two axes: ``A.T`` for one matrix (a view, as ``np.swapaxes`` gives, at a tenth of its
+    call cost), ``np.swapaxes(A, -1, -2)`` for a batch."""
+    return cast(FloatArray, A.T if A.ndim == 2 else np.swapaxes(A, -1, -2))
 
 
 def is_positive_definite(P: Floats) -> bool:
     """True if P (n, n) is finite and every eigenvalue of its symmetric part is > 0."""
     return bool(np.isfinite(P).all() and np.all(np.linalg.eigvalsh(P) > 0.0))
+
+
+def is_cholesky_factorable(P: Floats) -> bool:
+    """True if P (n, n) is finite and its Cholesky factorisation (LAPACK dpotrf, lower triangle) succeeds.
+
+    Positive definiteness as a Kalman filter meets it next (a factorisation of P or of S), and cheaper than the
+    eigenvalues of :func:`is_positive_definite` (9x9: ~3 us against ~15-50 us on the 2-core VM); the two tests can
+    disagree on a matrix at the margin."""
+    if not np.isfinite(P).all():
+        return False
+    return int(_dpotrf()(P, lower=1, clean=0)[1]) == 0
+
+
+@cache
+def _dpotrf() -> Callable[..., tuple[Any, int]]:
+    """LAPACK dpotrf, imported on first use: importing scipy.linalg would cost every user of the toolkit."""
+    from scipy.linalg.lapack import dpotrf
+
+    return cast(Callable[..., tuple[Any, int]], dpotrf)
 
 
 @dataclass
