@@ -23,7 +23,7 @@ from schemas.attitude import CA_STATE, AttitudeEstimate, AttitudeFlag, AttitudeS
 from schemas.base import Header, StrictModel
 from shared.errors import InputRejected
 from shared.estimates import gaussian
-from shared.filters.covariance import is_cholesky_factorable
+from shared.filters.covariance import is_cholesky_factorable, symmetrize
 
 from . import imm
 from .angles import IDX, N_ANGLES, AngleConventions, angle_block, angle_jacobian
@@ -575,7 +575,7 @@ class AttitudeCore:
         if ok[los_idx[0]] and ok[los_idx[1]] and ok[los_idx[2]]:
             jl = jac[list(los_idx)]
             c3 = jl @ p @ jl.T
-            c3 = 0.5 * (c3 + c3.T) * (_R2D * _R2D)
+            c3 = symmetrize(c3) * (_R2D * _R2D)
             if invalid:
                 scale = np.array([min(1.0, cap / sig[i]) if sig[i] > 0.0 else 1.0 for i in los_idx])
                 c3 = c3 * np.outer(scale, scale)
