@@ -125,9 +125,9 @@ def update_cost(M: int, n_meas: int = 400) -> dict[str, float]:
     for g in groups:
         g = [dataclasses.replace(m) for m in g]
         t0 = time.process_time()
-        nav.process_group(g)
+        nav.search.process_group(g)
         t1 = time.process_time()
-        nav.evaluate()
+        nav.search.evaluate()
         t2 = time.process_time()
         t_upd += t1 - t0
         t_eval += t2 - t1

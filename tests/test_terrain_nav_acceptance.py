@@ -26,8 +26,10 @@ from schemas.terrain_nav import TerrainFix, TerrainVerdict
 from services.terrain_nav.config import TerrainNavConfig
 from services.terrain_nav.core import TerrainNavigator
 from services.terrain_nav.metrics import aggregate, fix_errors_cells, score_run
+from services.terrain_nav.modified_algorithm import ModifiedSearch
 from services.terrain_nav.offline import run_flight
 from services.terrain_nav.resampler import CellMeasurement
+from services.terrain_nav.search import SearchContext
 from services.terrain_nav.simulation import (
     FailureSpec,
     FlightScenario,
@@ -362,11 +364,12 @@ def test_at6b_full_size() -> None:
 # --- AT-7: dropouts and NaN samples ---------------------------------------------------------------------------
 
 
-class _Recorder(TerrainNavigator):
-    """Records every cell measurement it forms and checks N_valid against a hand count at every verdict."""
+class _Recorder(ModifiedSearch):
+    """The default search, recording every cell measurement it forms and checking N_valid against a hand count
+    at every verdict (a search component: ``TerrainNavigator(..., search=_Recorder)``)."""
 
-    def __init__(self, *a: Any, **k: Any) -> None:
-        super().__init__(*a, **k)
+    def __init__(self, ctx: SearchContext) -> None:
+        super().__init__(ctx)
         self.formed: list[CellMeasurement] = []
         self.hand_checks = 0
 
@@ -394,7 +397,9 @@ def _at7_run(seed: int) -> tuple[dict[str, Any], _Recorder, SimulatedFlight]:
     rng = np.random.default_rng([seed, 7])
     drops = tuple(FailureSpec(kind="dropout", onset_s=float(o), duration_s=2.0) for o in rng.uniform(3.0, 55.0, 2))
     fl = simulate(SC.model_copy(update={"failures": drops, "n_nan_samples": 6}), seed)
-    nav = _Recorder(fl.world.ref_map)
+    nav = TerrainNavigator(fl.world.ref_map, search=_Recorder)
+    rec = nav.search
+    assert isinstance(rec, _Recorder)
     outs = []
     rejected: dict[str, int] = {}
     for msg in fl.messages():
@@ -406,15 +411,15 @@ def _at7_run(seed: int) -> tuple[dict[str, Any], _Recorder, SimulatedFlight]:
     ok = fl.ra_valid & np.isfinite(fl.h_ra)
     ix = np.floor(fl.x_ins / 125.0).astype(int)
     jx = np.floor(fl.z_ins / 125.0).astype(int)
-    for m in nav.formed:
+    for m in rec.formed:
         sel = ok & (ix == m.I) & (jx == m.J) & (fl.t >= m.t_first - 1e-9) & (fl.t <= m.t_last + 1e-9)
         assert m.n == int(sel.sum())
         assert m.h_ra == pytest.approx(fl.h_ra[sel].mean(), rel=1e-9)
     assert rejected.get("non_finite", 0) == int((~np.isfinite(fl.h_ra)).sum())
     assert rejected.get("ra_invalid", 0) == int((~fl.ra_valid & np.isfinite(fl.h_ra)).sum())
     m = score_run(outs, fl, N_MAX_TIME_S)
-    m["excluded"] = sum(x.exclude for x in nav.formed)
-    return m, nav, fl
+    m["excluded"] = sum(x.exclude for x in rec.formed)
+    return m, rec, fl
 
 
 def test_at7_dropouts_and_nan_samples() -> None:
@@ -442,10 +447,12 @@ def test_at8_out_of_zone_entry_and_exit() -> None:
     sc = SC.model_copy(update={"start_cell": (15, 50), "offset_max_cells": 3.0, "duration_s": 170 * CELL_TIME_S})
     for seed in (11, 12, 13):
         fl = simulate(sc, seed)
-        nav = _Recorder(fl.world.ref_map)
+        navigator = TerrainNavigator(fl.world.ref_map, search=_Recorder)
+        nav = navigator.search
+        assert isinstance(nav, _Recorder)
         outs = []
         for msg in fl.messages():
-            outs.extend(nav.step(msg))  # no exception, nothing refused
+            outs.extend(navigator.step(msg))  # no exception, nothing refused
         zone_t = [fl.t[k] for k in range(fl.tau.size) if 25 <= math.floor(fl.x_ins[k] / 125.0) <= 174]
         t_in, t_out = min(zone_t), max(zone_t)
         for v in outs:

@@ -191,8 +191,8 @@ def test_nav_reset_clears_the_estimator_but_keeps_the_map(flight: SimulatedFligh
     out = nav.step(NavReset(header=_hdr(t), reason="INS reset by operator"))
     assert len(out) == 1 and isinstance(out[0], TerrainVerdict) and out[0].state == "RESET"
     assert out[0].detail == "INS reset by operator"
-    assert nav.N_valid == 0 and nav.total_meas == 0 and not nav.window.measq and not nav.group
-    assert np.all(nav.bank.x == 0) and np.array_equal(nav.bank.P, nav.bank.P0) and not nav.argmin_hist
+    assert nav.N_valid == 0 and nav.total_meas == 0 and not nav.window.measq and not nav.search.group
+    assert np.all(nav.bank.x == 0) and np.array_equal(nav.bank.P, nav.bank.P0) and not nav.search.argmin_hist
     out, _ = _feed(nav, msgs[900:])
     verdicts = [m for m in out if isinstance(m, TerrainVerdict)]
     assert verdicts[0].n_measurements == 4 and verdicts[0].n_valid == 3  # first residual excluded again
@@ -241,14 +241,14 @@ def test_at11_grouping_gives_identical_states_and_f(flight: SimulatedFlight) -> 
     nav1 = TerrainNavigator(ref, TerrainNavConfig(preset="paper", N_p=1))
     snaps = []
     for m in meas:
-        nav1.push_measurement(dataclasses.replace(m))
+        nav1.search.push_measurement(dataclasses.replace(m))  # type: ignore[attr-defined]
         snaps.append((nav1.bank.x.copy(), nav1.F.copy(), nav1.N_valid))
     assert nav1.n_evaluations == 128
     for N_p in (2, 4, 8):
         nav = TerrainNavigator(ref, TerrainNavConfig(preset="paper", N_p=N_p))
         evaluated_at = []
         for k, m in enumerate(meas):
-            if nav.push_measurement(dataclasses.replace(m)):
+            if nav.search.push_measurement(dataclasses.replace(m)):  # type: ignore[attr-defined]
                 evaluated_at.append(k + 1)
                 S1, F1, n1 = snaps[k]
                 np.testing.assert_allclose(nav.bank.x, S1, rtol=0, atol=1e-12 * np.abs(S1).max())

@@ -305,13 +305,13 @@ def test_ins_gap_over_the_limit_is_reported_and_forms_no_measurement() -> None:
     events = [(ev.key, ev.msg) for ev in scenario_events(sc)]
     svc = make_service()
     measurements: list[CellMeasurement] = []
-    push = svc.nav.push_measurement
+    push = svc.nav.search.push_measurement
 
     def record(m: CellMeasurement) -> list[Any]:
         measurements.append(m)
         return push(m)
 
-    svc.nav.push_measurement = record  # type: ignore[method-assign]
+    svc.nav.search.push_measurement = record  # type: ignore[attr-defined]
     feed = framed(sc, inputs_of(svc, events))
     out = svc.run_offline(feed)
     gap_start, gap_end = 30.0, 31.0  # no INS sample in [30, 31) s: the limit is ins_max_gap_s = 0.2 s

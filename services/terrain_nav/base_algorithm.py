@@ -12,7 +12,8 @@ N_min and N_max are the same profile lengths as in the modified algorithm, conve
 a start, a gap or a zone re-entry is not accumulated). The fix is ``(i* cell, j* cell)``: the
 interpolated map reads are already at the INS position, so no cell-centre term applies.
 
-It shares the message front end (synchronisation, rejection rules) with :class:`TerrainNavigator`.
+It is a search component (:mod:`.search`): the navigator's front end (synchronisation, rejection rules, resets,
+messages) is the same; ``TerrainNavigator(ref_map, cfg, search=BaseSearch)`` or :func:`BaseRecurrentSearch` runs it.
 """
 
 from __future__ import annotations
@@ -23,33 +24,59 @@ import numpy as np
 
 from . import conditions as cond
 from .config import TerrainNavConfig
-from .core import Evaluation, FixData, TerrainNavigator
+from .core import TerrainNavigator
+from .evaluation import Evaluation, FixData
+from .filter import KalmanBank
+from .geometry import F64
 from .maps import ReferenceMap
 from .models import measurement_variance
 from .output import grid_covariance
+from .search import SearchContext
 from .window import SegmentedWindow
 
 
-class BaseRecurrentSearch(TerrainNavigator):
-    """Per-sample recurrent search with interpolation and the C1-only decision rule."""
+class BaseSearch:
+    """Per-sample recurrent search with interpolation and the C1-only decision rule (module doc)."""
 
-    def __init__(self, ref_map: ReferenceMap, cfg: TerrainNavConfig | None = None, source: str = "") -> None:
-        super().__init__(ref_map, cfg, source)
-        c = self.cfg
+    def __init__(self, ctx: SearchContext) -> None:
+        self.cfg = c = ctx.cfg
+        self.map = ref_map = ctx.map
+        self.grid = ctx.grid
+        self.D1 = ctx.D1
+        self.counters = ctx.counters
         self.N_min, self.N_max = c.base_n_limits(ref_map.cell_m)
         self.base_zone = ref_map.bilinear_zone_mask(c.M_x, c.M_z)
-        self.window = SegmentedWindow(self.grid.shape, 1, self.N_max, c.window_recompute_segments)
+        self.bank = KalmanBank(self.grid.shape, c.P0, c.phi31, c.q_a, c.q_h)
+        self.window: SegmentedWindow[None] = SegmentedWindow(
+            self.grid.shape, 1, self.N_max, c.window_recompute_segments
+        )
         self._R = measurement_variance(1, c.sigma_v_m, c.sigma_map_m, c.c_q, self.D1)
         self._patch = np.empty(self.grid.shape)
-        self._last: tuple[float, float, float] | None = None  # (t, x, z) of the last processed sample
+        self._dem = ref_map.dem
         self._last_x = 0.0
         self._last_z = 0.0
         self._last_h = 0.0
         self._last_vh: float | None = None
+        self.clear()
 
-    def _clear_algorithm_state(self) -> None:
-        super()._clear_algorithm_state()
-        self._last = None
+    @property
+    def F(self) -> F64:
+        """The windowed sum of squared residuals over the hypothesis grid (m^2)."""
+        return self.window.F
+
+    @property
+    def N_valid(self) -> int:
+        return self.window.N_valid
+
+    def clear(self) -> None:
+        """Forget the window, the KF states and the last sample."""
+        self.bank.reset()
+        self.window.reset()
+        self.first_after_gap = True
+        self.total_meas = 0
+        self.n_evaluations = 0
+        self._last_ooz_t: float | None = None
+        self._last: tuple[float, float, float] | None = None  # (t, x, z) of the last processed sample
 
     def push_sample(
         self,
@@ -113,13 +140,13 @@ class BaseRecurrentSearch(TerrainNavigator):
         nu = bank.innovation(patch, h_ra - h_ins)
         if exclude:
             bank.update(nu, self._R)
-            self.window.push(None, None)  # type: ignore[arg-type]
+            self.window.push(None, None)
         else:
             e2 = nu * nu
             Sk = bank.update(nu, self._R)
             if cfg.normalize_by_S:
                 e2 *= self._R / Sk
-            self.window.push(e2, None)  # type: ignore[arg-type]
+            self.window.push(e2, None)
         self.total_meas += 1
         self.counters["measurements"] += 1
         return [self._evaluate_base(t)]
@@ -168,3 +195,10 @@ class BaseRecurrentSearch(TerrainNavigator):
                 cov_degenerate=degenerate,
             )
         return ev
+
+
+def BaseRecurrentSearch(
+    ref_map: ReferenceMap, cfg: TerrainNavConfig | None = None, source: str = ""
+) -> TerrainNavigator:
+    """A navigator whose search is the base algorithm of §2.13."""
+    return TerrainNavigator(ref_map, cfg, source, search=BaseSearch)
