@@ -67,7 +67,7 @@ def _cpu_messages(nav: TerrainNavigator, fl: SimulatedFlight) -> float:
 
 def speedup(rate_hz: float, runs: int) -> dict[str, float]:
     sc = FlightScenario(rate_hz=rate_hz)
-    cfg = TerrainNavConfig(base_sample_rate_hz=rate_hz)
+    cfg = TerrainNavConfig(preset="paper", base_sample_rate_hz=rate_hz)
     ratios, ratios_msg, t_base, t_mod = [], [], [], []
     for seed in range(runs):
         fl = simulate(sc, 500 + seed)
@@ -100,7 +100,7 @@ def update_cost(M: int, n_meas: int = 400) -> dict[str, float]:
     n_i, n_j = 2 * M + 200, 2 * M + 40
     dem = make_terrain("informative", (n_i, n_j), rng)
     ref = ReferenceMap(dem=dem, cell_m=125.0)
-    cfg = TerrainNavConfig(M_x=M, M_z=M, N_p=4)
+    cfg = TerrainNavConfig(preset="paper", M_x=M, M_z=M, N_p=4)
     nav = TerrainNavigator(ref, cfg)
     J = n_j // 2
     meas = [
@@ -141,7 +141,7 @@ def update_cost(M: int, n_meas: int = 400) -> dict[str, float]:
 
 def window_memory() -> dict[str, float]:
     fl = simulate(FlightScenario(), 42)
-    cfg = TerrainNavConfig()
+    cfg = TerrainNavConfig(preset="paper")
     nav = TerrainNavigator(fl.world.ref_map, cfg)
     base = BaseRecurrentSearch(fl.world.ref_map, cfg)
     most = most_base = 0
@@ -155,7 +155,7 @@ def window_memory() -> dict[str, float]:
     return {
         "modified_bytes": float(most),
         "modified_arrays": float(arrays),
-        "kf_state_bytes": float(nav.bank.S.nbytes),
+        "kf_state_bytes": float(nav.bank.x.nbytes),
         "base_bytes": float(most_base),
         "reduction": most_base / most,
     }
