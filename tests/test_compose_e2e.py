@@ -79,8 +79,11 @@ def test_up_records_the_demo_scenario(tmp_path: Path) -> None:
     refused = max((d["count"] for d in recorder_diags if d["reason"] == "non_finite"), default=0)
     gaps = max((d["count"] for d in recorder_diags if d["reason"] == "seq_gap"), default=0)
     kept_raw = sum(n for k, n in counts.items() if k.startswith("fixstream/rejected/fixstream/sensor/"))
-    assert refused > 0, "the demo's NaN samples were not refused"
-    assert kept_raw == refused
+    # the scenario names how many NaN samples it publishes; every one is kept raw. The recorder's diagnostics are
+    # rate-limited per reason (counts are never lost, messages may be), so the last one recorded may be behind
+    nan_samples = sum(int(sim["params"].get("nan_samples", 0)) for sim in spec["simulators"])
+    assert nan_samples > 0 and kept_raw == nan_samples
+    assert 0 < refused <= kept_raw, "the demo's NaN samples were not refused"
     assert gaps == 0
     assert streams + kept_raw == int(published.group(1))
     assert {d["reason"] for d in recorder_diags} <= {"non_finite", "seq_gap"}, [d["reason"] for d in recorder_diags]

@@ -52,7 +52,7 @@ def write_file(
                 )
             if topic not in channel_ids:
                 channel_ids[topic] = w.register_channel(
-                    topic, "json", schema_ids[name], {"zenoh_encoding": f"application/msgpack;fixstream.{name}/1"}
+                    topic, "json", schema_ids[name], {"zenoh_encoding": f"application/msgpack;{type(msg).schema_id()}"}
                 )
             w.add_message(channel_ids[topic], log_time=5_000 + i, data=msg.model_dump_json().encode(), publish_time=i)
             sent.append((topic, msg))
@@ -83,7 +83,7 @@ def test_finalised_file_matches_official_reader(tmp_path: Path, compression: Com
     for r in records:
         assert r.schema_encoding == "jsonschema" and r.message_encoding == "json"
         assert r.schema_name == f"fixstream.{type(decode_record(r)).__name__}"
-        assert r.channel_metadata["zenoh_encoding"].endswith("/1")
+        assert r.channel_metadata["zenoh_encoding"] == f"application/msgpack;{type(decode_record(r)).schema_id()}"
     expected_counts: dict[str, int] = {}
     for topic, _ in sent:
         expected_counts[topic] = expected_counts.get(topic, 0) + 1

@@ -56,7 +56,7 @@ def test_file_layout_is_what_foxglove_reads(tmp_path: Path) -> None:
         assert set(topics) == {k for k, _ in sent}
         for key, msg in sent:
             assert topics[key].message_encoding == "json"
-            assert topics[key].metadata == {"zenoh_encoding": f"application/msgpack;fixstream.{type(msg).__name__}/1"}
+            assert topics[key].metadata == {"zenoh_encoding": f"application/msgpack;{type(msg).schema_id()}"}
     records = list(iter_records(path))
     assert [(r.topic, decode_record(r)) for r in records] == sent
     assert [r.publish_time_ns for r in records] == [m.header.stamp_ns for _, m in sent]
