@@ -378,7 +378,7 @@ class _Recorder(ModifiedSearch):
         out = super().push_measurement(m)
         if out:  # a verdict: count the accepted residuals of the measurements in the window by the digest's rule
             expected = sum(not _hand_excluded(self.formed, x) for x in self.window.measq)
-            assert self.N_valid == expected
+            assert self.window.N_valid == expected
             self.hand_checks += 1
         return out
 

@@ -27,7 +27,6 @@ from .config import TerrainNavConfig
 from .core import TerrainNavigator
 from .evaluation import Evaluation, FixData
 from .filter import KalmanBank
-from .geometry import F64
 from .maps import ReferenceMap
 from .models import measurement_variance
 from .output import grid_covariance
@@ -58,15 +57,6 @@ class BaseSearch:
         self._last_h = 0.0
         self._last_vh: float | None = None
         self.clear()
-
-    @property
-    def F(self) -> F64:
-        """The windowed sum of squared residuals over the hypothesis grid (m^2)."""
-        return self.window.F
-
-    @property
-    def N_valid(self) -> int:
-        return self.window.N_valid
 
     def clear(self) -> None:
         """Forget the window, the KF states and the last sample."""

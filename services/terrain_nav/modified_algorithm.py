@@ -54,15 +54,6 @@ class ModifiedSearch:
         self._dem = ref_map.dem
         self.clear()
 
-    @property
-    def F(self) -> F64:
-        """The windowed sum of squared residuals over the hypothesis grid (m^2)."""
-        return self.window.F
-
-    @property
-    def N_valid(self) -> int:
-        return self.window.N_valid
-
     def clear(self) -> None:
         """Forget the window, the KF states, the argmin history, the group and the resampler's cell."""
         self.bank.reset()
