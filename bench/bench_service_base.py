@@ -27,6 +27,7 @@ Zenoh's thread and the service's.
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -34,6 +35,7 @@ import threading
 import time
 import timeit
 from collections.abc import Iterable
+from pathlib import Path
 from typing import Any, ClassVar, cast
 
 import msgpack
@@ -66,6 +68,8 @@ class EchoService(Service):
         self.n = 0
         self.t0: tuple[float, float] | None = None
         self.t1: tuple[float, float] | None = None
+        self.threads0: dict[str, float] = {}
+        self.threads1: dict[str, float] = {}
 
     def subscriptions(self) -> list[Subscription]:
         return [Subscription("fixstream/sensor/bench/depth/*", self.on_depth, accepts=(Depth,))]
@@ -73,11 +77,35 @@ class EchoService(Service):
     def on_depth(self, key: str, msg: Message) -> Iterable[Output]:
         self.n += 1
         if self.n == WARM:
+            self.threads0 = thread_cpu()
             self.t0 = (time.process_time(), time.perf_counter())
         elif self.n == N:
             self.t1 = (time.process_time(), time.perf_counter())
+            self.threads1 = thread_cpu()
             self.stop()
         return (Output(OUT_KEY, msg),)
+
+
+class InlineEchoService(EchoService):
+    """The same service processing each sample in Zenoh's callback thread (no inbox, no second thread): what the
+    hand-over between the two threads costs, measured as a variant. Not what services run: a core that stalls holds
+    Zenoh's delivery thread, and the session with it (the inbox's reason, ``tests/test_faults.py``)."""
+
+    def _declare(self) -> None:
+        assert self.session is not None
+        self._subs = self.subscriptions()
+        wire_keys, process = self._wire_keys, self.process
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            key = str(sample.key_expr)
+            if key not in wire_keys:
+                self._declare_wire_key(key)
+            process(key, sample.payload.to_bytes(), str(sample.encoding), time.time_ns())
+
+        self._declared.append(self.session.declare_subscriber(self._subs[0].key_expr, on_sample))
+
+    def _loop(self) -> None:
+        self._stop.wait()
 
 
 class FifoEchoService(EchoService):
@@ -123,6 +151,28 @@ class _NullSession:
         return None
 
 
+#: Zenoh's runtime threads (network I/O, timers, acceptor); any other thread but the main one runs Python callbacks
+_ZENOH_RUNTIME = ("rx-", "tx-", "net-", "acc-", "app-")
+
+
+def thread_cpu() -> dict[str, float]:
+    """CPU seconds (user + system) used so far by this process's threads, in three groups: ``loop`` (the main
+    thread: the service's own loop), ``callback`` (threads Zenoh runs Python callbacks on) and ``runtime``
+    (Zenoh's network threads); from /proc, tick resolution."""
+    tck = os.sysconf("SC_CLK_TCK")
+    main = threading.main_thread().native_id
+    groups = {"loop": 0.0, "callback": 0.0, "runtime": 0.0}
+    for task in Path("/proc/self/task").iterdir():
+        try:
+            comm = (task / "comm").read_text().strip()
+            fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:  # a thread that ended meanwhile
+            continue
+        group = "loop" if int(task.name) == main else "runtime" if comm.startswith(_ZENOH_RUNTIME) else "callback"
+        groups[group] += (int(fields[11]) + int(fields[12])) / tck
+    return groups
+
+
 def _payload(seq: int) -> bytes:
     return codec.encode(Depth(header=Header(stamp_ns=seq * 1_000_000, source="bench/p0", seq=seq), depth_m=35.5))
 
@@ -133,12 +183,13 @@ def serve(kind: str, endpoint: str) -> None:
     span."""
     zs = ZenohSettings(mode="client", connect=[endpoint])
     key_expr = "fixstream/sensor/bench/depth/*" if kind == "bare_wildcard" else IN_KEY
-    if kind in ("service", "service_fifo"):
-        svc = (EchoService if kind == "service" else FifoEchoService)(ServiceSettings(instance="b0"), zs)
+    if kind in SERVICES:
+        svc = SERVICES[kind](ServiceSettings(instance="b0"), zs)
         threading.Timer(1.0, lambda: print("ready", flush=True)).start()  # run() declares within the first second
         svc.run()
         assert svc.t0 is not None and svc.t1 is not None
-        print(f"{svc.t1[0] - svc.t0[0]} {svc.t1[1] - svc.t0[1]}", flush=True)
+        threads = {g: svc.threads1[g] - svc.threads0[g] for g in svc.threads0}
+        print(f"{svc.t1[0] - svc.t0[0]} {svc.t1[1] - svc.t0[1]} {json.dumps(threads)}", flush=True)
         return
     session = open_session(zs)
     pub = session.declare_publisher(OUT_KEY, congestion_control=zenoh.CongestionControl.BLOCK)
@@ -164,6 +215,13 @@ def serve(kind: str, endpoint: str) -> None:
     print(f"{c1 - c0} {w1 - w0}", flush=True)
     sub.undeclare()
     session.close()
+
+
+SERVICES: dict[str, type[EchoService]] = {
+    "service": EchoService,
+    "service_inline": InlineEchoService,
+    "service_fifo": FifoEchoService,
+}
 
 
 def publish(endpoint: str) -> None:
@@ -195,7 +253,7 @@ def _spawn(fn: str, *args: str) -> subprocess.Popen[str]:
     )
 
 
-def run_consumer(kind: str, endpoint: str) -> dict[str, float]:
+def run_consumer(kind: str, endpoint: str) -> dict[str, Any]:
     """One consumer against the publisher; its CPU and wall time per message over the measured span, and what the
     benchmark process received of its outputs."""
     got = [0]
@@ -210,8 +268,9 @@ def run_consumer(kind: str, endpoint: str) -> dict[str, float]:
         time.sleep(0.5)  # both declared and known to the router
         publisher.stdin.write("\n")
         publisher.stdin.flush()
-        line = consumer.stdout.readline().split()
+        line = consumer.stdout.readline().split(maxsplit=2)
         cpu_s, wall_s = float(line[0]), float(line[1])
+        threads: dict[str, float] = json.loads(line[2]) if len(line) > 2 else {}
         publisher.stdin.write("\n")
         publisher.stdin.flush()
         publisher.wait(timeout=30)
@@ -230,6 +289,7 @@ def run_consumer(kind: str, endpoint: str) -> dict[str, float]:
         "cpu_us_per_msg": cpu_s / span * 1e6,
         "msg_per_s": span / wall_s,
         "outputs_received": got[0] if not kind.startswith("bare") else 0,
+        "threads_us_per_msg": {g: t / span * 1e6 for g, t in threads.items()},
     }
 
 
@@ -281,11 +341,20 @@ def in_process(endpoint: str) -> dict[str, float]:
     }
 
 
+#: what each thread group of a service consumer does (:func:`thread_cpu`)
+THREAD_GROUPS = {
+    "loop": "its own thread",
+    "callback": "Zenoh's Python-callback thread",
+    "runtime": "Zenoh's network threads",
+}
+
+
 def main() -> None:
     rows: list[list[Any]] = []
     figures: dict[str, Any] = {"n": N, "warm": WARM}
     with router() as endpoint:
-        results = {k: run_consumer(k, endpoint) for k in ("bare", "bare_wildcard", "relay", "service", "service_fifo")}
+        kinds = ("bare", "bare_wildcard", "relay", "service", "service_inline", "service_fifo")
+        results = {k: run_consumer(k, endpoint) for k in kinds}
         steps = in_process(endpoint)
     anchor = results["bare"]["cpu_us_per_msg"]
     labels = {
@@ -293,6 +362,7 @@ def main() -> None:
         "bare_wildcard": "the same subscribing with a wildcard (keys not declared)",
         "relay": "bare callback that counts and puts the payload",
         "service": "service base, no-op core (typed subscription, one output)",
+        "service_inline": "the same processing in Zenoh's callback thread (variant, not shipped)",
         "service_fifo": "the same through Zenoh's FifoChannel (variant, not shipped)",
     }
     for kind, r in results.items():
@@ -303,6 +373,9 @@ def main() -> None:
     figures["in_process_us"] = steps
     for step, us in steps.items():
         rows.append([f"in process: {step}", f"{us:.2f}", "", "", ""])
+    for kind in SERVICES:
+        for group, us in results[kind]["threads_us_per_msg"].items():
+            rows.append([f"{labels[kind].split(' (')[0]}: {THREAD_GROUPS[group]}", f"{us:.2f}", "", "", ""])
     emit(
         "service_base",
         ["path", "CPU µs/msg", "ratio to anchor", "over anchor µs", "msg/s (wall)"],
