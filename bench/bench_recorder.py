@@ -37,6 +37,7 @@ from shared.mcap_io import count_by_topic, recording_files
 from shared.session import open_session
 from shared.settings import ZenohSettings
 
+from .procstat import THREAD_GROUPS, machine_busy_s, thread_cpu
 from .report import emit
 from .stack import REPO, router
 
@@ -184,7 +185,7 @@ def _row(endpoint: str, tmp: Path, mode: str, rate: float) -> dict[str, Any]:
         time.sleep(1.0)  # publishers' declarations reach the recorder
         sampler = threading.Thread(target=sample, daemon=True)
         sampler.start()
-        cpu_rec0 = _cpu_s(rec.pid)
+        cpu_rec0, threads0, busy0 = _cpu_s(rec.pid), thread_cpu(rec.pid), machine_busy_s()
         t0 = time.monotonic()
         for p in pubs:
             assert p.stdin is not None
@@ -194,6 +195,7 @@ def _row(endpoint: str, tmp: Path, mode: str, rate: float) -> dict[str, Any]:
         for p in pubs:
             assert p.stdout is not None
             results.append(json.loads(p.stdout.readline()))
+        busy_pub = machine_busy_s() - busy0
         pub_wall = max(r["wall_s"] for r in results)
         sent = sum(r["sent"] for r in results)
         # let the recorder catch up
@@ -207,6 +209,7 @@ def _row(endpoint: str, tmp: Path, mode: str, rate: float) -> dict[str, Any]:
             time.sleep(0.5)
         busy_wall = time.monotonic() - t0
         cpu_rec = _cpu_s(rec.pid) - cpu_rec0
+        threads1 = thread_cpu(rec.pid)
         stop_sampling.set()
         sampler.join(timeout=5)
         assert anchor.stdin is not None and anchor.stdout is not None
@@ -258,6 +261,9 @@ def _row(endpoint: str, tmp: Path, mode: str, rate: float) -> dict[str, Any]:
         "status_answered": f"{answered}/{asked}",
         "status_slowest_s": slowest,
         "recorder_cpu_us_per_msg": 1e6 * cpu_rec / max(in_mcap, 1),
+        "recorder_threads_us_per_msg": {g: 1e6 * (threads1[g] - threads0[g]) / max(in_mcap, 1) for g in threads0},
+        "publishers_cpu_us_per_msg": 1e6 * sum(r["cpu_s"] for r in results) / max(sent, 1),
+        "machine_cores_busy": busy_pub / pub_wall,
         "anchor_cpu_us_per_msg": 1e6 * anchor_cpu / max(anchor_total, 1),
         "catch_up_s": busy_wall - pub_wall,
         "stop_after_sigterm_s": stop_s,
@@ -284,6 +290,9 @@ def main() -> None:
         "max lag",
         "status ok",
         "CPU µs/msg rec / anchor",
+        "rec µs/msg: " + " / ".join(THREAD_GROUPS.values()),
+        "publishers µs/msg",
+        f"cores busy (of {os.cpu_count()})",
         "stop s",
     ]
     table = [
@@ -300,6 +309,9 @@ def main() -> None:
             r["max_lag_behind_anchor"],
             r["status_answered"],
             f"{r['recorder_cpu_us_per_msg']:.1f} / {r['anchor_cpu_us_per_msg']:.1f}",
+            " / ".join(f"{r['recorder_threads_us_per_msg'][g]:.1f}" for g in THREAD_GROUPS),
+            f"{r['publishers_cpu_us_per_msg']:.1f}",
+            f"{r['machine_cores_busy']:.2f}",
             round(r["stop_after_sigterm_s"], 2),
         )
         for r in rows

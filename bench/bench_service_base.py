@@ -35,7 +35,6 @@ import threading
 import time
 import timeit
 from collections.abc import Iterable
-from pathlib import Path
 from typing import Any, ClassVar, cast
 
 import msgpack
@@ -47,6 +46,7 @@ from shared.service import Output, Service, Subscription
 from shared.session import open_session
 from shared.settings import ServiceSettings, ZenohSettings
 
+from .procstat import THREAD_GROUPS, thread_cpu
 from .report import emit
 from .stack import REPO, router
 
@@ -149,28 +149,6 @@ class _NullSession:
 
     def declare_keyexpr(self, key: str) -> None:
         return None
-
-
-#: Zenoh's runtime threads (network I/O, timers, acceptor); any other thread but the main one runs Python callbacks
-_ZENOH_RUNTIME = ("rx-", "tx-", "net-", "acc-", "app-")
-
-
-def thread_cpu() -> dict[str, float]:
-    """CPU seconds (user + system) used so far by this process's threads, in three groups: ``loop`` (the main
-    thread: the service's own loop), ``callback`` (threads Zenoh runs Python callbacks on) and ``runtime``
-    (Zenoh's network threads); from /proc, tick resolution."""
-    tck = os.sysconf("SC_CLK_TCK")
-    main = threading.main_thread().native_id
-    groups = {"loop": 0.0, "callback": 0.0, "runtime": 0.0}
-    for task in Path("/proc/self/task").iterdir():
-        try:
-            comm = (task / "comm").read_text().strip()
-            fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:  # a thread that ended meanwhile
-            continue
-        group = "loop" if int(task.name) == main else "runtime" if comm.startswith(_ZENOH_RUNTIME) else "callback"
-        groups[group] += (int(fields[11]) + int(fields[12])) / tck
-    return groups
 
 
 def _payload(seq: int) -> bytes:
@@ -339,14 +317,6 @@ def in_process(endpoint: str) -> dict[str, float]:
         "validate": best(lambda: codec.validate(Depth, obj)),
         "encode_stamped": best(lambda: codec.encode_stamped(msg, "bench_echo/b0", next(seq))),
     }
-
-
-#: what each thread group of a service consumer does (:func:`thread_cpu`)
-THREAD_GROUPS = {
-    "loop": "its own thread",
-    "callback": "Zenoh's Python-callback thread",
-    "runtime": "Zenoh's network threads",
-}
 
 
 def main() -> None:
