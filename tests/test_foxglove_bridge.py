@@ -21,7 +21,6 @@ from __future__ import annotations
 import asyncio
 import base64
 import json
-import math
 import struct
 import subprocess
 import threading
@@ -34,11 +33,13 @@ import pytest
 import yaml
 import zenoh
 from conftest import REPO, fixstream_cmd
-from test_foxglove import cov_of_sphere, haversine, proto_class
+from test_foxglove import GEODESY_ATOL_M, cov_of_sphere, proto_class
+from test_recorded_track import enu_independent
 
 from schemas import Fix, Header, Truth
 from shared import codec, keys
 from shared.estimates import POSITION, gaussian
+from shared.foxglove.convert import Origin
 from shared.session import open_session
 from shared.settings import ZenohSettings
 
@@ -213,15 +214,15 @@ def test_client_receives_zenoh_messages_through_the_bridge(router: str, tmp_path
         p = entity.spheres[0].pose.position
         assert [p.x, p.y, p.z] == pytest.approx(f.estimate.mean, abs=1e-9)
         assert np.allclose(cov_of_sphere(entity.spheres[0]), np.array(COV), atol=1e-9)
-    # the map: the fix at its great-circle distance and bearing from the origin
+    # the map: the fix on WGS84, which closed-form geodesy takes back to its ENU position
     loc_cls = proto_class("foxglove.LocationFix", base64.b64decode(channels[loc]["schema"]))
+    origin = Origin(ORIGIN["lat_deg"], ORIGIN["lon_deg"], ORIGIN["alt_m"])
     for payload in got[loc]:
         lf = loc_cls.FromString(payload)
         f = fixes[lf.timestamp.seconds * 10**9 + lf.timestamp.nanos]
-        d, b = haversine(ORIGIN["lat_deg"], ORIGIN["lon_deg"], lf.latitude, lf.longitude)
-        assert d == pytest.approx(math.hypot(f.estimate.mean[0], f.estimate.mean[1]), rel=5e-3)
-        assert abs(math.remainder(b - math.atan2(f.estimate.mean[0], f.estimate.mean[1]), math.tau)) < 5e-3
-        assert lf.altitude == pytest.approx(ORIGIN["alt_m"] + f.estimate.mean[2])
+        lla = (np.array([lf.latitude]), np.array([lf.longitude]), np.array([lf.altitude]))
+        enu = enu_independent(*lla, origin)[0]  # type: ignore[arg-type]
+        assert np.allclose(enu, f.estimate.mean, rtol=0.0, atol=GEODESY_ATOL_M)
         assert list(lf.position_covariance) == pytest.approx([v for row in COV for v in row])
 
 

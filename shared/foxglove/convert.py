@@ -13,11 +13,13 @@ truth, fixes, hypotheses, tracks — all brought into the scenario's ENU frame):
   tracks and deletes the dropped ones;
 * ``/foxglove/location/<key>`` — ``foxglove.LocationFix`` (truth and fixes of one platform) or
   ``foxglove.LocationFixes`` (``Track`` and the types a plugin lists in ``multi_views``: a scan's tracks):
-  latitude, longitude and altitude of the ENU position from the scenario's geodetic ``origin``. The scenario
-  frame is a flat local map, so north and east become arcs on the WGS84 ellipsoid at the origin —
-  Δφ = north / (M + h₀), Δλ = east / ((N + h₀) cos φ₀) with M, N the meridian and prime-vertical radii — and the
-  altitude is h₀ + up (a simulated aircraft at constant "up" flies at constant altitude). Good to metres over
-  tens of km. The ENU covariance goes with it (``Known``). Without an origin there is no map channel.
+  latitude, longitude and height of the ENU position from the scenario's geodetic ``origin``. The scenario
+  frame is the topocentric Cartesian frame at the origin, and the conversion its exact inverse on WGS84
+  (:class:`shared.geodesy.LocalFrame`, PROJ; the player converts recorded geodetic tracks into the frame with
+  the same transform, so a recorded track shows where it was recorded). A simulated aircraft at constant "up"
+  flies a straight line of that Cartesian frame, so its height above the ellipsoid grows with its distance from
+  the origin (~785 m at 100 km). The ENU covariance goes with it (``Known``). Without an origin there is no map
+  channel.
 
 ``<key>`` is the fixstream key without its ``fixstream/`` root (``/foxglove/scene/fix/terrain/tan1``).
 Timestamps are the messages' ``header.stamp_ns`` (the scenario clock).
@@ -29,6 +31,7 @@ looks names up) or given at construction.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import os
@@ -41,6 +44,7 @@ import numpy as np
 
 from schemas import Message, ScenarioMarker
 from shared import keys
+from shared.geodesy import LocalFrame
 from shared.plugins import multi_view_types
 
 from .frames import F64, Estimate, FrameContext, estimates_of
@@ -57,9 +61,6 @@ MULTI = frozenset({"Track"})
 #: sphere diameter of a truth sample or an estimate without covariance, m
 POINT_SIZE_M = 20.0
 
-_WGS84_A = 6_378_137.0
-_WGS84_F = 1.0 / 298.257223563
-_WGS84_E2 = _WGS84_F * (2.0 - _WGS84_F)
 
 _COLORS: dict[str, tuple[float, float, float, float]] = {
     "truth": (0.1, 0.75, 0.2, 0.9),
@@ -79,18 +80,15 @@ class Origin:
     lon_deg: float
     alt_m: float = 0.0
 
+    @functools.cached_property
+    def _frame(self) -> LocalFrame:
+        return LocalFrame(self)
+
     def to_geodetic(self, enu: Sequence[float] | F64) -> tuple[float, float, float]:
-        """(lat deg, lon deg, alt m) of an ENU position (local tangent plane at the origin)."""
-        phi = math.radians(self.lat_deg)
-        s2 = math.sin(phi) ** 2
-        n = _WGS84_A / math.sqrt(1.0 - _WGS84_E2 * s2)
-        m = _WGS84_A * (1.0 - _WGS84_E2) / (1.0 - _WGS84_E2 * s2) ** 1.5
-        east, north, up = (float(v) for v in enu)
-        lat = self.lat_deg + math.degrees(north / (m + self.alt_m))
-        lon = self.lon_deg + math.degrees(east / ((n + self.alt_m) * math.cos(phi)))
-        if not -180.0 <= lon < 180.0:
-            lon = (lon + 180.0) % 360.0 - 180.0
-        return lat, lon, self.alt_m + up
+        """(lat deg, lon deg, height m above the ellipsoid) of an ENU position of the scenario frame: the exact
+        inverse of the topocentric frame at the origin (:mod:`shared.geodesy`)."""
+        lat, lon, alt = self._frame.to_geodetic(np.asarray(enu, dtype=np.float64).reshape(1, 3))[0]
+        return float(lat), float(lon), float(alt)
 
 
 def ellipsoid(cov: F64, n_sigma: float = N_SIGMA) -> tuple[list[float], list[float]]:

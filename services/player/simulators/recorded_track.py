@@ -6,11 +6,12 @@ up in metres of the scenario frame), with optional velocity ([east, north, up] m
 pitch, roll in degrees) columns. GNSS logs, ADS-B tracks and AUV navigation logs all come in this shape.
 
 **Geodesy (pyproj, not flat earth).** Geodetic rows are converted to a local east/north/up frame with PROJ's
-``cart`` + ``topocentric`` pipeline: geodetic -> Earth-centred Cartesian (WGS84) -> the topocentric frame at
-``origin`` (default: the first row). This is an exact rigid transform of the ellipsoid's coordinates; the
-frame's up axis is the ellipsoid normal at the origin, so a level flight 100 km away from it shows the Earth's
-curvature (~785 m of drop), as it must in a Cartesian frame. :meth:`RecordedTrack.geodetic` converts back
-(exactly) for consumers that want latitude, longitude and height, e.g. a map in a projected CRS.
+``cart`` + ``topocentric`` pipeline (:class:`shared.geodesy.LocalFrame`, which the Foxglove map channels
+invert): geodetic -> Earth-centred Cartesian (WGS84) -> the topocentric frame at ``origin`` (default: the first
+row). This is an exact rigid transform of the ellipsoid's coordinates; the frame's up axis is the ellipsoid
+normal at the origin, so a level flight 100 km away from it shows the Earth's curvature (~785 m of drop), as it
+must in a Cartesian frame. :meth:`RecordedTrack.geodetic` converts back (exactly) for consumers that want
+latitude, longitude and height, e.g. a map in a projected CRS.
 
 **Smoothing and differentiation (the documented method).** Each ENU axis is fitted, as a function of time,
 with a cubic **smoothing spline** (Reinsch; :func:`scipy.interpolate.make_smoothing_spline`) that minimises
@@ -63,6 +64,8 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field, model_validator
 from scipy.interpolate import CubicSpline, make_smoothing_spline
+
+from shared.geodesy import LocalFrame
 
 from .base import NS_PER_S, SimParams, TruthState
 from .trajectory import G_MPS2, TWO_PI, States
@@ -172,34 +175,6 @@ def _float_column(cols: dict[str, NDArray[np.generic]], name: str, where: str) -
     if not np.all(np.isfinite(out)):
         raise ValueError(f"{where}: column {name!r} has a non-finite value")
     return out
-
-
-# --- geodesy ---------------------------------------------------------------------------------------------------
-
-
-class LocalFrame:
-    """Exact geodetic <-> local east/north/up conversion at an origin on WGS84 (PROJ ``cart`` + ``topocentric``)."""
-
-    def __init__(self, origin: GeoPoint) -> None:
-        from pyproj import Transformer
-
-        self.origin = origin
-        self._t = Transformer.from_pipeline(
-            "+proj=pipeline +step +proj=unitconvert +xy_in=deg +xy_out=rad +step +proj=cart +ellps=WGS84 "
-            f"+step +proj=topocentric +ellps=WGS84 +lat_0={origin.lat_deg!r} +lon_0={origin.lon_deg!r} "
-            f"+h_0={origin.alt_m!r}"
-        )
-
-    def to_enu(self, lat_deg: F64, lon_deg: F64, alt_m: F64) -> F64:
-        """(n, 3) [east, north, up] m of geodetic points."""
-        e, n, u = self._t.transform(np.asarray(lon_deg, float), np.asarray(lat_deg, float), np.asarray(alt_m, float))
-        return np.column_stack([np.atleast_1d(e), np.atleast_1d(n), np.atleast_1d(u)])
-
-    def to_geodetic(self, enu: F64) -> F64:
-        """(n, 3) [lat_deg, lon_deg, alt_m] of local [east, north, up] points."""
-        enu = np.atleast_2d(np.asarray(enu, dtype=np.float64))
-        lon, lat, h = self._t.transform(enu[:, 0], enu[:, 1], enu[:, 2], direction="INVERSE")
-        return np.column_stack([np.atleast_1d(lat), np.atleast_1d(lon), np.atleast_1d(h)])
 
 
 # --- the trajectory ----------------------------------------------------------------------------------------------
