@@ -183,14 +183,18 @@ def _run(core: AttitudeCore, plots: list[RadarPlot]) -> list:
     return [est for pl in plots for est in core.step(pl)]
 
 
-@pytest.mark.parametrize("lag", [1, 3])
-def test_smoother_leaves_the_real_time_estimates_and_adds_the_lagged_ones(lag: int) -> None:
+#: the default bank with the CT model predicted by its EKF (the smoother's other cross-covariance path)
+EKF_BANK = tuple(m.model_copy(update={"ct_prediction": "ekf"}) if m.kind == "ct" else m for m in MANOEUVRE_MODELS)
+
+
+@pytest.mark.parametrize(("lag", "bank"), [(1, MANOEUVRE_MODELS), (3, MANOEUVRE_MODELS), (2, EKF_BANK)])
+def test_smoother_leaves_the_real_time_estimates_and_adds_the_lagged_ones(lag: int, bank: tuple) -> None:
     """L = 0 is the current IMM (no SMOOTHED output); with L > 0 the real-time outputs are bit-identical and each
     plot from the (L + 1)-th after the start adds one SMOOTHED estimate with the stamp of the plot L back."""
     plots = _plots(scan_times(40, 5.0), seed=5)
-    base = _run(AttitudeCore(AttitudeConfig()), plots)
+    base = _run(AttitudeCore(AttitudeConfig(imm_models=bank)), plots)
     assert not any("SMOOTHED" in e.flags for e in base)
-    out = _run(AttitudeCore(AttitudeConfig(smoother_lag_scans=lag)), plots)
+    out = _run(AttitudeCore(AttitudeConfig(imm_models=bank, smoother_lag_scans=lag)), plots)
     realtime = [e for e in out if "SMOOTHED" not in e.flags]
     assert [e.model_dump() for e in realtime] == [e.model_dump() for e in base]
     smoothed = [e for e in out if "SMOOTHED" in e.flags]
