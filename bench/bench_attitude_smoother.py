@@ -10,6 +10,7 @@ them) and times each core per plot.
 
     ATTITUDE_SMOOTHER_RUNS=10 ATTITUDE_SMOOTHER_WORKERS=2 python -m bench attitude_smoother
     ATTITUDE_SMOOTHER_LAGS=1,2,3,5 ...                     # the lags (default 1, 2, 3)
+    ATTITUDE_SMOOTHER_FILES=attitude_9s15 ...              # only these files (default: the family and 9s15)
 
 The smoothed stream has no estimate for the last L plots of a flight (they are never L plots old): its "psi
 defined" share is lower by about L / 81 on the phases that run to the end of the flight. The time per plot is
@@ -122,7 +123,9 @@ def _ratio(phases: dict[str, Any]) -> float | None:
 def main() -> None:
     runs = int(os.environ.get("ATTITUDE_SMOOTHER_RUNS", "10"))
     workers = int(os.environ.get("ATTITUDE_SMOOTHER_WORKERS", "1"))
-    files = [*FILES, "attitude_9s15"]
+    chosen = os.environ.get("ATTITUDE_SMOOTHER_FILES")
+    files = chosen.split(",") if chosen else [*FILES, "attitude_9s15"]
+    family = [n for n in FILES if n in files]
     tasks = [(name, run) for name in files for run in range(runs)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=workers) as pool:
@@ -138,7 +141,8 @@ def main() -> None:
     figures: dict[str, Any] = {"runs_per_file": runs, "seed": SEED, "seconds": time.perf_counter() - t0}
     rows: list[list[Any]] = []
     ratio_rows: list[list[Any]] = []
-    for label, names in [("family", list(FILES)), *[(n.removeprefix("attitude_"), [n]) for n in files]]:
+    groups = [("family", family)] if family else []
+    for label, names in [*groups, *[(n.removeprefix("attitude_"), [n]) for n in files]]:
         for s in STREAMS:
             aggs = [aggregate(per_file[n][s]) for n in names]
             phases = phase_table([p for a in aggs for p in a["phase_samples"]])
