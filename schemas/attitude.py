@@ -31,6 +31,7 @@ AttitudeFlag = Literal[
     "GATE_REJECTED",
     "INIT_WAITING_SPREAD",
     "EXTRAPOLATED",
+    "SMOOTHED",
 ]
 
 _Deg360 = Field(default=None, ge=0.0, le=360.0)

@@ -215,6 +215,13 @@ class AttitudeConfig(BaseModel):
         description="VALID also needs the mean NIS of the last this-many plots inside the chi2(3 W) 99 % bound "
         "(the estimate's covariance explains its innovations) [EXT]; None: sigmas only (paper preset)",
     )
+    smoother_lag_scans: int = Field(
+        default=0,
+        ge=0,
+        le=10,
+        description="IMM only: besides each real-time estimate, emit the fixed-lag smoothed estimate of the plot this "
+        "many plots back (flag SMOOTHED, smoother.py) [EXT]; 0: off",
+    )
     g_mps2: float = Field(default=9.81, gt=0.0, description="gravity in eq. (4), m/s^2 (the OCR reads 9.82)")
     nis_gate: float | None = Field(
         default=21.1, gt=0.0, description="innovation gate, chi2(3) 99.99 % quantile [EXT]; None disables it"
@@ -313,6 +320,8 @@ class AttitudeConfig(BaseModel):
         for m in self.imm_models:
             if m.exits_to is not None and (not m.exits_to or not set(m.exits_to) <= set(names) - {m.name}):
                 raise ValueError(f"imm_models: {m.name}.exits_to must name other models of the bank")
+        if self.smoother_lag_scans and self.motion != "imm":
+            raise ValueError("smoother_lag_scans needs motion 'imm' (the smoother augments the IMM's models)")
         mu0 = self.imm_initial_probabilities
         if mu0 is not None and (
             len(mu0) != len(self.imm_models) or any(not 0.0 < m <= 1.0 for m in mu0) or abs(sum(mu0) - 1.0) > 1e-9

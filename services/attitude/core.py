@@ -25,7 +25,7 @@ from shared.errors import InputRejected
 from shared.estimates import gaussian
 from shared.filters.covariance import is_cholesky_factorable, symmetrize
 
-from . import imm
+from . import imm, smoother
 from .angles import IDX, N_ANGLES, AngleConventions, angle_block, angle_jacobian
 from .config import AttitudeConfig, MeasurementSigmas
 from .filter import predict, update
@@ -73,6 +73,7 @@ class _Track:
         "buffer",
         "coast_k",
         "imm",
+        "lag",
         "n_updates",
         "nis_fail",
         "nis_hist",
@@ -100,6 +101,7 @@ class _Track:
         self.pending: list[AttitudeFlag] = []
         self.t_activity_ns = 0
         self.imm: imm.ImmState | None = None  # per-model state of the IMM (motion = "imm")
+        self.lag: smoother.LagState | None = None  # the fixed-lag smoother's lagged blocks (smoother_lag_scans > 0)
         self.nis_hist: deque[float] = deque(maxlen=100)  # NIS of the accepted plots since the start
 
     def last_plot_ns(self) -> int | None:
@@ -116,6 +118,7 @@ class _Track:
         self.nis_fail = 0
         self.coast_k = 0
         self.imm = None
+        self.lag = None
         self.nis_hist.clear()
         self.buffer.clear()
         self.buffer.append((t_ns, z, rz))
@@ -147,6 +150,7 @@ class AttitudeCore:
         self._imm = cfg.motion == "imm"
         self._models = cfg.imm_models
         self._mu0 = cfg.initial_probabilities()
+        self._lag = cfg.smoother_lag_scans if self._imm else 0
         #: VALID needs the mean NIS of the last W plots under the chi2(3 W) 99 % quantile / W (W = valid_nis_window)
         w = cfg.valid_nis_window
         self._nis_bound = None if w is None else float(chi2.ppf(0.99, 3 * w)) / w
@@ -314,6 +318,9 @@ class AttitudeCore:
         out: list[AttitudeEstimate] = []
         if tr.x is not None and tr.p is not None:
             out.append(self._estimate(tr, t, tr.x, tr.p, flags, status, los_dir, nis, raw=True))
+            if tr.lag is not None and tr.imm is not None and tr.t_ns == t and tr.lag.depth == self._lag:
+                t_s, x_s, p_s = tr.lag.smoothed(tr.imm.mu, self._lag)
+                out.append(self._estimate(tr, t_s, x_s, p_s, ["SMOOTHED"], None, None, None))
         elif cfg.emit_init:
             out.append(self._init_estimate(tr, t, status or "INIT", flags, los_dir))
         out.extend(self._advance_clock(t))
@@ -340,6 +347,8 @@ class AttitudeCore:
         tr.buffer.clear()
         if self._imm:
             tr.imm = imm.ImmState.start(x, p, self._mu0, self._models)
+            if self._lag:
+                tr.lag = smoother.LagState.empty(len(self._models), tr.imm.xs.shape[1])
         return True
 
     def _predict(self, tr: _Track, dt_s: float) -> tuple[F64, F64]:
@@ -433,6 +442,11 @@ class AttitudeCore:
             flags.append("COVARIANCE_RESET")
             self.counters["reset_covariance"] += 1
             return None
+        if tr.lag is not None and tr.t_ns is not None:
+            try:
+                tr.lag = smoother.step(tr.lag, tr.imm, self._models, dt, xp, pp, z, rz, res.state, tr.t_ns, self._lag)
+            except np.linalg.LinAlgError:  # not expected (the IMM's own update factorised the same S): start over
+                tr.lag = smoother.LagState.empty(len(self._models), res.state.xs.shape[1])
         tr.imm = res.state
         # the output is the 9-state of eq. (3) (a CT model's turn rate, index 9, is internal to the IMM)
         self._accept(tr, t, z, res.x[:9].copy(), res.p[:9, :9].copy(), res.nis, flags, period_ns)

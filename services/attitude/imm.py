@@ -119,14 +119,21 @@ def augment(x: F64, p: F64) -> None:
     a CT model mixes it in like any other component. A variance above OMEGA_SIGMA_CAP^2 is scaled down to it
     with its covariances (a congruence D P D, D = diag(1, .., 1, s), so P stays positive semi-definite); the mean
     is clipped to +-1 rad/s (a state of a diverging start, not an aircraft)."""
-    w, g = turn_rate(x)
-    p9g = p[:9, :9] @ g
-    var = float(g @ p9g)
-    s = 1.0 if var <= OMEGA_SIGMA_CAP * OMEGA_SIGMA_CAP else OMEGA_SIGMA_CAP / math.sqrt(var)
+    w, _, p9g, var, s = implied_turn_rate(x, p)
     x[OMEGA] = max(-1.0, min(1.0, w))
     p[OMEGA, :9] = s * p9g
     p[:9, OMEGA] = s * p9g
     p[OMEGA, OMEGA] = s * s * var + OMEGA_NUGGET
+
+
+def implied_turn_rate(x: F64, p: F64) -> tuple[float, F64, F64, float, float]:
+    """What :func:`augment` sets: (omega, g = d(omega)/d(alpha) (9,), P9 g, g^T P9 g, the cap's scale s); the
+    covariance of the implied omega with any variable y is s g^T cov(alpha9, y)."""
+    w, g = turn_rate(x)
+    p9g = p[:9, :9] @ g
+    var = float(g @ p9g)
+    s = 1.0 if var <= OMEGA_SIGMA_CAP * OMEGA_SIGMA_CAP else OMEGA_SIGMA_CAP / math.sqrt(var)
+    return w, g, p9g, var, s
 
 
 def _augment_models(xs: F64, ps: F64, models: tuple[MotionModel, ...]) -> None:
@@ -172,11 +179,17 @@ def combine(xs: F64, ps: F64, mu: F64) -> tuple[F64, F64]:
     return x, symmetrize(p)
 
 
+def mixing_weights(mu: F64, pi: F64) -> tuple[F64, F64]:
+    """(c (M,), w (M, M)): the predicted model probabilities c_j = sum_i pi_ij mu_i and the mixing weights
+    w[i, j] = mu_i|j = pi_ij mu_i / c_j (columns sum to 1)."""
+    c = mu @ pi
+    return c, (mu[:, None] * pi) / c[None, :]
+
+
 def mix(state: ImmState, pi: F64) -> tuple[F64, F64, F64]:
     """Step 1: (c (M,), alpha0 (M, 9), P0 (M, 9, 9)): the predicted model probabilities and mixed initial
     conditions of every model."""
-    c = state.mu @ pi
-    w = (state.mu[:, None] * pi) / c[None, :]  # w[i, j] = mu_i|j, columns sum to 1
+    c, w = mixing_weights(state.mu, pi)
     x0 = w.T @ state.xs
     p0 = np.empty_like(state.ps)
     for j in range(len(c)):

@@ -112,11 +112,13 @@ def radar_frame_truth(truth: Truth, site_enu_m: list[float]) -> Truth:
 
 
 def run_metrics(
-    outputs: list[Event], events: list[Event], params: dict[str, Any], scenario: Scenario
+    outputs: list[Event], events: list[Event], params: dict[str, Any], scenario: Scenario, smoothed: bool = False
 ) -> dict[str, Any]:
     """Metrics of one run from what the site published (its ``AttitudeEstimate`` events; COASTING ones are not
     scored) against the targets' truth in ``events``: every target with a plot on the site's radar keys, scored at
-    each of its truth samples. A pure function of the two, so a recording gives the figures of :func:`run_core`."""
+    each of its truth samples. A pure function of the two, so a recording gives the figures of :func:`run_core`.
+    ``smoothed``: score the fixed-lag smoothed estimates (flag SMOOTHED, ``smoother_lag_scans``) instead of the
+    real-time ones."""
     p = Params.model_validate(params, strict=True)
     site_id, site_pos = _site(p, scenario)
     config = p.core_config(site_id)
@@ -136,7 +138,12 @@ def run_metrics(
                 truths.setdefault(msg.platform, []).append(msg)
     for ev in outputs:
         est = ev.msg
-        if isinstance(est, AttitudeEstimate) and est.site_id == site_id and est.status != "COASTING":
+        if (
+            isinstance(est, AttitudeEstimate)
+            and est.site_id == site_id
+            and est.status != "COASTING"
+            and ("SMOOTHED" in est.flags) == smoothed
+        ):
             estimates.setdefault(est.target_id, {})[est.header.stamp_ns] = est
     targets: dict[str, Any] = {}
     for tid, by_stamp in estimates.items():
@@ -158,6 +165,15 @@ OFFLINE_ONLY = ("rejected", "core")
 
 def run_core(events: list[Event], params: dict[str, Any], scenario: Scenario) -> dict[str, Any]:
     """Metrics of one run: one core of the site fed the site's radar events in order, then :func:`run_metrics`."""
+    outputs, rejected, core = core_outputs(events, params, scenario)
+    return {**run_metrics(outputs, events, params, scenario), "rejected": rejected, "core": core}
+
+
+def core_outputs(
+    events: list[Event], params: dict[str, Any], scenario: Scenario
+) -> tuple[list[Event], int, dict[str, int]]:
+    """(the site's outputs as events, the number of refused inputs, the core's counters) of one core of the site
+    fed the site's radar events in order."""
     p = Params.model_validate(params, strict=True)
     site_id, _ = _site(p, scenario)
     core = AttitudeCore(p.core_config(site_id))
@@ -174,11 +190,7 @@ def run_core(events: list[Event], params: dict[str, Any], scenario: Scenario) ->
             rejected += 1
             continue
         outputs += [Event(est.header.stamp_ns, out_prefix + est.target_id, est) for est in produced]
-    return {
-        **run_metrics(outputs, events, params, scenario),
-        "rejected": rejected,
-        "core": dict(sorted(core.counters.items())),
-    }
+    return outputs, rejected, dict(sorted(core.counters.items()))
 
 
 def _at(values: list[Any], scan: int) -> float | None:
@@ -257,4 +269,13 @@ def _trim(rec: dict[str, Any], n: int) -> dict[str, Any]:
     return out
 
 
-__all__ = ["OFFLINE_ONLY", "REFERENCE_RULES", "Params", "aggregate", "radar_frame_truth", "run_core", "run_metrics"]
+__all__ = [
+    "OFFLINE_ONLY",
+    "REFERENCE_RULES",
+    "Params",
+    "aggregate",
+    "core_outputs",
+    "radar_frame_truth",
+    "run_core",
+    "run_metrics",
+]

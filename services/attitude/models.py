@@ -278,6 +278,58 @@ def ct_transitions(omegas: F64, dt_s: float, tau_s: float) -> F64:
     return out
 
 
+def ct_quadrature_nodes(
+    x: F64, p: F64, dt_s: float, sigma_accel_mps2: float, tau_s: float
+) -> tuple[F64, F64, F64, F64, F64]:
+    """The Gauss-Hermite nodes over the turn rate of :func:`ct_predict` (and of the fixed-lag smoother's
+    cross-covariances, :func:`ct_cross_covariance`): (dev (K,): omega_k - omega_bar, weights (K,), k (9,): the
+    regression P_a,omega / P_omega,omega of the 9-state on omega, C (9x9): its covariance given omega, Phi (K, 9, 9):
+    the transitions at the nodes). A turn rate known to 1e-7 rad/s is one node with no regression."""
+    omega = float(x[OMEGA])
+    s2 = float(p[OMEGA, OMEGA])
+    if not s2 > 1e-14:
+        dev, weights = np.zeros(1), np.ones(1)
+        k = np.zeros(9)
+        c = p[:9, :9]
+    else:
+        dev, weights = math.sqrt(s2) * _GH_X, _GH_W
+        k = p[:9, OMEGA] / s2
+        c = p[:9, :9] - np.outer(k, p[OMEGA, :9])
+    nk = dev.size
+    phi = np.zeros((nk, 9, 9))
+    phi[:, _HORIZ_A[:, None], _HORIZ_A[None, :]] = ct_transitions(omega + dev, dt_s, tau_s)
+    phi[:, _VERT_A[:, None], _VERT_A[None, :]] = _singer_transition(dt_s, sigma_accel_mps2, tau_s)
+    return dev, weights, k, c, phi
+
+
+def ct_cross_covariance(x: F64, p: F64, b: F64, dt_s: float, sigma_accel_mps2: float, tau_s: float) -> F64:
+    """cov(alpha~, y) (10 x K) of the CT model's predicted 10-state alpha~ with any other Gaussian variables y
+    (the fixed-lag smoother's lagged states), given B = cov(alpha, y) (10 x K) before the step. With y | omega
+    Gaussian of mean y_bar + k_y (omega - omega_bar) (k_y = B[omega] / P_omega,omega) and conditional covariance
+    with the 9-state C_ay = B[:9] - k B[omega], E[Phi(omega) alpha (y - y_bar)^T] over omega's Gaussian is
+
+        sum_n w_n Phi_n [C_ay + m_n k_y^T dev_n],    m_n = alpha_bar + k dev_n
+
+    by the nodes of :func:`ct_predict` (exact for the same polynomial degree); the turn rate's own row is B[omega]
+    (a random walk; the process noise is independent of y). For a known omega this is Phi(omega) B[:9]."""
+    dev, weights, k, _, phi = ct_quadrature_nodes(x, p, dt_s, sigma_accel_mps2, tau_s)
+    s2 = float(p[OMEGA, OMEGA])
+    b_om = b[OMEGA]
+    out = np.empty_like(b)
+    out[OMEGA] = b_om
+    if dev.size == 1:
+        out[:9] = phi[0] @ b[:9]
+        return out
+    c_ay = b[:9] - np.outer(k, b_om)
+    k_y = b_om / s2
+    m = x[:9] + dev[:, None] * k  # (K nodes, 9)
+    acc = np.zeros_like(c_ay)
+    for n in range(dev.size):
+        acc += weights[n] * (phi[n] @ (c_ay + dev[n] * np.outer(m[n], k_y)))
+    out[:9] = acc
+    return out
+
+
 def ct_predict(x: F64, p: F64, dt_s: float, sigma_accel_mps2: float, tau_s: float, q_omega: float) -> tuple[F64, F64]:
     """The CT model's prediction of (x, P) (10-state) by Gauss-Hermite quadrature over the turn rate:
 
@@ -292,18 +344,7 @@ def ct_predict(x: F64, p: F64, dt_s: float, sigma_accel_mps2: float, tau_s: floa
     omega = float(x[OMEGA])
     s2 = float(p[OMEGA, OMEGA])
     q = ct_process_noise(x, dt_s, sigma_accel_mps2, tau_s, q_omega)
-    if not s2 > 1e-14:
-        dev, weights = np.zeros(1), np.ones(1)
-        k = np.zeros(9)
-        c = p[:9, :9]
-    else:
-        dev, weights = math.sqrt(s2) * _GH_X, _GH_W
-        k = p[:9, OMEGA] / s2
-        c = p[:9, :9] - np.outer(k, p[OMEGA, :9])
-    nk = dev.size
-    phi = np.zeros((nk, 9, 9))
-    phi[:, _HORIZ_A[:, None], _HORIZ_A[None, :]] = ct_transitions(omega + dev, dt_s, tau_s)
-    phi[:, _VERT_A[:, None], _VERT_A[None, :]] = _singer_transition(dt_s, sigma_accel_mps2, tau_s)
+    dev, weights, k, c, phi = ct_quadrature_nodes(x, p, dt_s, sigma_accel_mps2, tau_s)
     m = np.matmul(phi, (x[:9] + dev[:, None] * k)[:, :, None])[:, :, 0]
     mean = weights @ m
     wm = m * weights[:, None]

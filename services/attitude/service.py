@@ -117,6 +117,10 @@ def output_key(site_id: str, target_id: str) -> str:
     return keys.fix(ESTIMATOR, site_id, target_id)
 
 
+#: the fixed-lag smoothed estimates (``smoother_lag_scans`` > 0) go to ``<output_key>/smoothed``
+SMOOTHED_SUBKEY = "smoothed"
+
+
 class AttitudeSettings(ServiceSettings, AttitudeConfig):
     """``FIXSTREAM_ATTITUDE_*``: every :class:`AttitudeConfig` parameter (digest §5.2 defaults), one variable each
     (``FIXSTREAM_ATTITUDE_RADAR=Vostok3D``, ``FIXSTREAM_ATTITUDE_SIGMA_JERK_MPS3=[0.3, 0.3, 0.3]``), plus the
@@ -220,6 +224,9 @@ class AttitudeService(Service):
         info = self._targets.get(tid)
         if info is None:
             info = self._targets[tid] = _TargetInfo(output_key(self.site_id, tid))
+        if "SMOOTHED" in est.flags:  # the fixed-lag smoothed estimate (smoother_lag_scans): its own key, no events
+            self.outputs += 1
+            return Output(f"{info.key}/{SMOOTHED_SUBKEY}", est)
         flags = frozenset(est.flags)
         previous, info.flags = info.flags, flags
         if est.status == "RESET":
@@ -279,4 +286,4 @@ def build() -> AttitudeService:
     return AttitudeService(settings)
 
 
-__all__ = ["AttitudeService", "AttitudeSettings", "build", "input_key", "output_key"]
+__all__ = ["SMOOTHED_SUBKEY", "AttitudeService", "AttitudeSettings", "build", "input_key", "output_key"]
