@@ -111,6 +111,12 @@ def radar_frame_truth(truth: Truth, site_enu_m: list[float]) -> Truth:
     return truth.model_copy(update={"position_m": pos, "velocity_mps": vel, "acceleration_mps2": acc})
 
 
+def is_realtime(est: AttitudeEstimate) -> bool:
+    """An estimate of the real-time stream, not the fixed-lag smoothed one (flag SMOOTHED, stamped L plots back,
+    published on its own sub-key): what the metrics and the report score unless asked for the smoothed stream."""
+    return "SMOOTHED" not in est.flags
+
+
 def run_metrics(
     outputs: list[Event], events: list[Event], params: dict[str, Any], scenario: Scenario, smoothed: bool = False
 ) -> dict[str, Any]:
@@ -142,7 +148,7 @@ def run_metrics(
             isinstance(est, AttitudeEstimate)
             and est.site_id == site_id
             and est.status != "COASTING"
-            and ("SMOOTHED" in est.flags) == smoothed
+            and is_realtime(est) != smoothed
         ):
             estimates.setdefault(est.target_id, {})[est.header.stamp_ns] = est
     targets: dict[str, Any] = {}

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from schemas.attitude import AttitudeEstimate
-from services.attitude.mc import radar_frame_truth
+from services.attitude.mc import is_realtime, radar_frame_truth
 from services.attitude.metrics import RunRecorder
 from shared.foxglove.frames import estimates_of
 
@@ -48,7 +48,10 @@ def build(data: RunData, metrics: dict[str, dict[str, Any]]) -> list[Section]:
 
 def _section(data: RunData, source: str, entry: dict[str, Any] | None) -> Section:
     instance = source.split("/", 1)[1]
-    ests = [(ev.key, ev.msg) for ev in data.outputs[source] if isinstance(ev.msg, AttitudeEstimate)]
+    # the real-time stream only: a site run with smoother_lag_scans also publishes SMOOTHED estimates of past plots
+    ests = [
+        (ev.key, ev.msg) for ev in data.outputs[source] if isinstance(ev.msg, AttitudeEstimate) and is_realtime(ev.msg)
+    ]
     site = ests[0][1].site_id if ests else instance
     sec = Section(KIND, instance, f"Aircraft attitude from radar plots — site {site}")
     site_pos = data.ctx.sites.get(site)
