@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed-stamp
 LOCK   := requirements.lock
 UV     := $(VENV)-tools/bin/uv
 
-.PHONY: install demo test lint typecheck unit bench schemas tools images clean lock
+.PHONY: install demo test lint typecheck unit bench schemas tools images demo-containers clean lock
 
 # The install is the lock file's exact versions, every file checked against its hash, then the project itself
 # (editable, no dependency resolution, built with the locked setuptools). `make lock` refreshes the lock.
@@ -54,6 +54,11 @@ tools:
 # tagged fixstream:latest. Cached by what goes into them; a warm call costs seconds.
 images: install tools
 	$(PY) tests/container_support.py images
+
+# The demo as real containers under podman (no registry): the images, podman's Docker API socket, the
+# healthcheck driver and a writable ./recordings, all set up for you (docs/stack.md, "Containers with podman").
+demo-containers: images
+	$(PY) tests/container_support.py demo
 
 # The demo: the compose stack as local processes; the recording gets Foxglove scene channels, and the run
 # ends with its report (fixstream report) and prints where the report is.

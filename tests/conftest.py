@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -15,8 +17,11 @@ import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO / "tests"))
-# where `fixstream up` announces its router (shared.local_stack): the tests' own, never a user's running stack
-os.environ.setdefault("FIXSTREAM_STATE_DIR", tempfile.mkdtemp(prefix="fixstream-test-state-"))
+# where `fixstream up` announces its router (shared.local_stack): the tests' own, never a user's running stack,
+# removed when the test process ends (one per run used to be left behind in /tmp)
+if "FIXSTREAM_STATE_DIR" not in os.environ:
+    os.environ["FIXSTREAM_STATE_DIR"] = _STATE_DIR = tempfile.mkdtemp(prefix="fixstream-test-state-")
+    atexit.register(shutil.rmtree, _STATE_DIR, ignore_errors=True)
 
 
 def fixstream_cmd(*args: str) -> list[str]:

@@ -14,7 +14,9 @@ Docker-compatible socket, and images built where no registry image can be pulled
   ``starting`` for ever and ``depends_on: condition: service_healthy`` never starts. The driver runs
   ``podman healthcheck run`` for the compose project's containers that are still starting, as the timer would.
 
-``python tests/container_support.py images`` builds both images and tags the project image ``fixstream:latest``.
+``python tests/container_support.py images`` builds both images and tags the project image ``fixstream:latest``;
+``python tests/container_support.py demo`` (``make demo-containers``) then runs the demo stack as containers with
+every step above done for the user, the recording in ``./recordings`` owned by whoever ran it.
 """
 
 from __future__ import annotations
@@ -311,14 +313,42 @@ def compose_up(
         run([*base, "down", "--remove-orphans", "--timeout", "5"], timeout=300, env=full_env, cwd=REPO)
 
 
+def demo(recordings: Path) -> int:
+    """The demo stack as containers on podman (``compose.yaml`` + the router override): the Docker API socket, the
+    healthcheck driver and a recordings directory the containers can write, done here so that a user need not.
+    The services run as the calling user (``FIXSTREAM_UID``/``FIXSTREAM_GID``, unless set), so the MCAP file
+    belongs to whoever ran the demo. Returns compose's exit code (the player's)."""
+    recordings.mkdir(parents=True, exist_ok=True)
+    env = {
+        **os.environ,
+        "FIXSTREAM_UID": os.environ.get("FIXSTREAM_UID", str(os.getuid())),
+        "FIXSTREAM_GID": os.environ.get("FIXSTREAM_GID", str(os.getgid())),
+        "FIXSTREAM_RECORDINGS": str(recordings.resolve()),
+    }
+    before = set(recordings.glob("*.mcap"))
+    files = (REPO / "compose.yaml", REPO / "compose.fixstream-router.yaml")
+    with docker_api() as host:
+        proc = compose_up(f"fixstream-demo-{os.getpid()}", files, env, host, timeout_s=1800.0)
+    print(proc.stdout[-4000:], end="")
+    new = sorted(set(recordings.glob("*.mcap")) - before)
+    if proc.returncode == 0 and not new:
+        print(f"demo: compose exited 0 but no recording appeared in {recordings}", file=sys.stderr)
+        return 1
+    for path in new:
+        print(f"demo: recording {path}")
+    return proc.returncode
+
+
 def main(argv: Sequence[str]) -> int:
-    if list(argv) != ["images"]:
-        print("usage: python tests/container_support.py images", file=sys.stderr)
+    if list(argv) not in (["images"], ["demo"]):
+        print("usage: python tests/container_support.py images|demo", file=sys.stderr)
         return 2
     problem = engine_problem()
     if problem:
-        print(f"cannot build the images: {problem}", file=sys.stderr)
+        print(f"cannot run containers: {problem}", file=sys.stderr)
         return 2
+    if argv[0] == "demo":
+        return demo(REPO / "recordings")
     log: list[str] = []
     base = base_image(log)
     tag = project_image(base, log, also_tag=["localhost/fixstream:latest"])
