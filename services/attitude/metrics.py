@@ -243,7 +243,9 @@ def aggregate(
         sig = np.asarray(out["sigma_rms"][name][k0 - 1 : k1])
         with np.errstate(invalid="ignore", divide="ignore"):
             ratio = sig / rms
-        cons[name] = {"scans": [k0, k1], "ratio": ratio.tolist(), "mean_ratio": float(np.nanmean(ratio))}
+        # all NaN (a run too short for these scans): NaN, without numpy's "mean of empty slice" warning on stderr
+        mean = float(np.nanmean(ratio)) if np.any(~np.isnan(ratio)) else math.nan
+        cons[name] = {"scans": [k0, k1], "ratio": ratio.tolist(), "mean_ratio": mean}
     out["consistency"] = cons
     return out
 

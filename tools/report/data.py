@@ -244,6 +244,20 @@ def split(rec: Recording, scenario: Scenario | None) -> tuple[list[Event], dict[
     return events, dict(outputs), diags
 
 
+def cut_short(rec: Recording, scenario: Scenario | None) -> str | None:
+    """A note when the recording holds a scenario's start marker but not its end: the run was interrupted (Ctrl-C,
+    a failed service) and every figure covers only what was recorded; None for a run that ended."""
+    markers = [m for _, m in rec.markers]
+    if not markers or markers[-1].event != "start":  # no scenario, or its (last) run ended
+        return None
+    last = max((ev.msg.header.stamp_ns for ev in rec.items), default=0) / 1e9
+    of = f" of the scenario's {scenario.duration_s:g} s" if scenario is not None else ""
+    return (
+        f"the run was cut short: the recording has the scenario's start marker but not its end (interrupted, or a"
+        f" process failed); its data end at {last:.1f} s{of}, and every figure and verdict covers only that"
+    )
+
+
 def truth_series(items: list[Event], ctx: FrameContext) -> dict[str, TruthSeries]:
     """Per platform, the Truth positions (and velocities) in scenario ENU, in stamp order."""
     rows: dict[tuple[str, str], list[Truth]] = defaultdict(list)
@@ -287,6 +301,10 @@ def run_data(
     sc = choice.scenario
     ctx = FrameContext.from_scenario(sc)
     events, outputs, diags = split(rec, sc)
+    notes = [*rec.notes, *choice.notes]
+    cut = cut_short(rec, sc)
+    if cut:
+        notes.append(cut)
     return RunData(
         recording=rec,
         scenario=sc,
@@ -299,8 +317,8 @@ def run_data(
         outputs=outputs,
         diagnostics=diags,
         truth=truth_series(events, ctx),
-        notes=[*rec.notes, *choice.notes],
+        notes=notes,
     )
 
 
-__all__ = ["RunData", "ScenarioChoice", "TruthSeries", "find_scenario", "run_data", "split", "truth_series"]
+__all__ = ["RunData", "ScenarioChoice", "TruthSeries", "cut_short", "find_scenario", "run_data", "split", "truth_series"]

@@ -94,7 +94,8 @@ def _lbl_decision(head: dict[str, Any], m: dict[str, Any] | None) -> Iterator[tu
         if decision is None:
             yield "", "no decision between the two hypotheses", NO_DATA, ""
         elif str(decision).startswith("resolved"):
-            yield "", f"decision: {decision}", NO_DATA, "no truth at launch to tell which hypothesis was the true one"
+            note = head.get("decision_note") or "no truth to tell which hypothesis was the true one"
+            yield "", f"decision: {decision}", NO_DATA, note
         else:
             yield "", f"decision: {decision}", NO_DATA, "no choice between two hypotheses to judge"
         return

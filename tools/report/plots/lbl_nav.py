@@ -85,6 +85,7 @@ def _section(data: RunData, source: str, entry: dict[str, Any] | None) -> Sectio
         "resolution_after_launch_s": r(resolved_after),
         "decision": facts.get("decision"),
         "decision_correct": facts.get("correct"),
+        "decision_note": facts.get("decision_note"),
         "horizontal_rms_after_resolution_m": r(float(np.sqrt(np.mean(after**2)))) if after.size else None,
         "rms_after_resolution_per_axis_m": per_axis,
         **{k: v for k, v in head.items() if k.startswith("nees")},
@@ -125,7 +126,8 @@ def _story(fixes: list[tuple[str, LblFix]], truth: Any) -> tuple[Any, dict[str, 
             ax.axvline(launch / 1e9, color="tab:green", lw=0.8, label="launch")
         if decided is not None and decided.resolved_stamp_ns is not None:
             ax.axvline(decided.resolved_stamp_ns / 1e9, color="tab:purple", lw=0.8, label="resolution")
-        ax.legend(loc="upper right", ncol=3)
+        if ax.get_legend_handles_labels()[0]:  # nothing labelled (no hypothesis, no launch): no empty legend
+            ax.legend(loc="upper right", ncol=3)
     if launch is not None:
         facts["launch_s"] = launch / 1e9
     if decided is not None:
@@ -140,11 +142,18 @@ def _story(fixes: list[tuple[str, LblFix]], truth: Any) -> tuple[Any, dict[str, 
                 xytext=(4, 0),
                 textcoords="offset points",
             )
-    # the true hypothesis: the one nearest the truth at the launch epoch
+    # the true hypothesis: the one nearest the truth at the first epoch with two hypotheses
     first_two = next((f for _, f in fixes if len(f.hypotheses) == 2), None)
-    if truth is not None and first_two is not None and decided is not None and decided.hypothesis_source == "resolved":
-        p = truth.at(np.array([first_two.header.stamp_ns / 1e9]))[0]
-        if np.all(np.isfinite(p)):
-            d = {h.hypothesis_id: math.dist(h.estimate.mean[:2], p[:2]) for h in first_two.hypotheses}
-            facts["correct"] = decided.accepted_hypothesis == min(d, key=lambda u: d[u])
+    if decided is not None and decided.hypothesis_source == "resolved":
+        if first_two is None:
+            facts["decision_note"] = "resolved at once: no fix carried two hypotheses, so there was no pair to judge"
+        elif truth is None:
+            facts["decision_note"] = "no truth in the recording to tell which hypothesis was the true one"
+        else:
+            p = truth.at(np.array([first_two.header.stamp_ns / 1e9]))[0]
+            if np.all(np.isfinite(p)):
+                d = {h.hypothesis_id: math.dist(h.estimate.mean[:2], p[:2]) for h in first_two.hypotheses}
+                facts["correct"] = decided.accepted_hypothesis == min(d, key=lambda u: d[u])
+            else:
+                facts["decision_note"] = "no truth at the epoch of the two hypotheses to tell which was the true one"
     return render(fig, "Hypotheses, probabilities and resolution", "launch: first epoch with two ranges"), facts
