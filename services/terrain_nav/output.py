@@ -9,7 +9,9 @@
   H (or a minimum on the grid edge) gives the fallback ``((D_thr + 0.5) cell)^2 I`` and ``cov_degenerate``.
 * Refinement [P idea, D method]: the stored window profile is replayed through the same 3-state filter over
   sub-cell offsets around the grid estimate with bilinear map reads; the best offset is accepted if its cost
-  is not above the cost of the grid estimate recomputed the same way.
+  is not above the cost of the grid estimate recomputed the same way. The replay's filter at the best offset
+  also gives dh and dV read at the aircraft's (refined) positions rather than at the cell centres
+  (``refine_vertical``).
 """
 
 from __future__ import annotations
@@ -83,6 +85,9 @@ class Refinement:
     grid_cost: float
     accepted: bool
     cov_m2: F64 | None
+    dh_m: float = 0.0  # the replay filter's dh and dV at the best offset, at the newest measurement
+    dvh_mps: float = 0.0
+    cov_vert: F64 | None = None  # [[P_VV, P_Vh], [P_hV, P_hh]] of the replay (shared by all offsets)
 
 
 def refine(
@@ -136,4 +141,15 @@ def refine(
             for i in range(2):
                 cov_cells[i, i] = max(cov_cells[i, i], floor)
             cov = cov_cells * ref.cell_m**2
-    return Refinement(float(dx[best]), float(dz[best]), float(cost[best]), grid_cost, accepted, cov)
+    P = bank.P
+    return Refinement(
+        float(dx[best]),
+        float(dz[best]),
+        float(cost[best]),
+        grid_cost,
+        accepted,
+        cov,
+        dh_m=float(bank.x[2, best]),
+        dvh_mps=float(bank.x[1, best]),
+        cov_vert=np.array([[P[1, 1], P[1, 2]], [P[2, 1], P[2, 2]]]),
+    )
