@@ -108,10 +108,16 @@ def refine(
     bank = KalmanBank(dx.shape, cfg.P0, cfg.phi31, cfg.q_a, cfg.q_h)
     cost = np.zeros(dx.shape)
     used = 0
+    # the map reads of every measurement and offset in one call (row k: measurement k; elementwise the same
+    # arithmetic as one call per measurement, so the same values)
+    n = len(measq)
+    xm = np.fromiter((m.x_mean for m in measq), dtype=np.float64, count=n)
+    zm = np.fromiter((m.z_mean for m in measq), dtype=np.float64, count=n)
+    ui = (xm[:, None] + dx[None, :] - ref.x0_m) / ref.cell_m - 0.5
+    vi = (zm[:, None] + dz[None, :] - ref.z0_m) / ref.cell_m - 0.5
+    reads = bilinear(ref.dem, ui, vi)
     for idx, m in enumerate(measq):
-        ui = (m.x_mean + dx - ref.x0_m) / ref.cell_m - 0.5
-        vi = (m.z_mean + dz - ref.z0_m) / ref.cell_m - 0.5
-        heights = bilinear(ref.dem, ui, vi)
+        heights = reads[idx]
         bank.predict(m.t)
         R = measurement_variance(m.n, cfg.sigma_v_m, cfg.sigma_map_m, cfg.c_q, D1_m2)
         nu = bank.innovation(heights, m.h_ra - m.h_ins)
