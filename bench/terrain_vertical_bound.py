@@ -172,10 +172,35 @@ def fix_bound(
     prior: dict[str, float] | None = None,
 ) -> float:
     """CRLB of dh(t_fix) (m^2) from the flight's samples in [t_from, t_to] under the simulator's noise."""
+    return fix_bounds(flight, t_from, t_to, t_fix, {"b": (unknowns, prior)})["b"]
+
+
+def fix_bounds(
+    flight: Any,
+    t_from: float,
+    t_to: float,
+    t_fix: float,
+    variants: dict[str, tuple[Sequence[str], dict[str, float] | None]],
+) -> dict[str, float]:
+    """:func:`fix_bound` for several (unknowns, prior) variants over the same samples."""
     s = flight_samples(flight, t_from, t_to)
-    G, names = design(s, t_fix, unknowns)
+    W = weight_matrix(s)
     sc = flight.scenario
-    return crlb(fisher(G, weight_matrix(s), sc.sigma_v_m, sc.sigma_map_m), names, "dh", prior)
+    out = {}
+    for name, (unknowns, prior) in variants.items():
+        G, names = design(s, t_fix, unknowns)
+        out[name] = crlb(fisher(G, W, sc.sigma_v_m, sc.sigma_map_m), names, "dh", prior)
+    return out
+
+
+def bound_variants(sc: Any) -> dict[str, tuple[Sequence[str], dict[str, float] | None]]:
+    """The bounds the bench reports, over the window's samples: ``crlb`` (dx, dz, dh, dV, da; no prior: any
+    unbiased estimator), ``bayes`` (the same with the simulator's N(0, sigma_da) prior on da, a Bayesian bound on
+    any estimator's mean squared error; the estimator's own P0 carries a prior on da too) and ``drift_bayes``
+    (plus the horizontal velocity errors with their N(0, sigma_vh) prior)."""
+    da = {"da": sc.sigma_da_mps2} if sc.sigma_da_mps2 > 0 else {}
+    dv = {"dvx": sc.sigma_vh_mps, "dvz": sc.sigma_vh_mps} if sc.sigma_vh_mps > 0 else {}
+    return {"crlb": (DEFAULT_UNKNOWNS, None), "bayes": (DEFAULT_UNKNOWNS, da), "drift_bayes": (DRIFT_UNKNOWNS, da | dv)}
 
 
 def mixture_abs_quantile(var: np.ndarray, p: float) -> float:
@@ -190,12 +215,12 @@ def mixture_abs_quantile(var: np.ndarray, p: float) -> float:
 
 @dataclass
 class BoundTally:
-    """Fixes with N_valid >= N_max: the estimator's dh errors and the per-fix bounds (window / to date)."""
+    """Fixes with N_valid >= N_max: the estimator's dh errors and the per-fix bounds (``bound_variants`` over the
+    window's samples; ``to_date_bayes``: ``bayes`` over every sample since the start, the data the grid filter
+    uses)."""
 
     err: list[float] = field(default_factory=list)
-    crlb_window: list[float] = field(default_factory=list)
-    crlb_to_date: list[float] = field(default_factory=list)
-    crlb_window_drift: list[float] = field(default_factory=list)
+    bounds: dict[str, list[float]] = field(default_factory=dict)
 
     def row(self) -> dict[str, Any]:
         if not self.err:
@@ -208,11 +233,7 @@ class BoundTally:
             "mse_m2": float(np.mean(e * e)),
             "bias_m": float(np.mean(self.err)),
         }
-        for key, v in (
-            ("window", self.crlb_window),
-            ("to_date", self.crlb_to_date),
-            ("window_drift", self.crlb_window_drift),
-        ):
+        for key, v in self.bounds.items():
             a = np.asarray(v)
             out[key] = {
                 "median_m": mixture_abs_quantile(a, 0.5),
@@ -223,7 +244,7 @@ class BoundTally:
         return out
 
 
-def score_bound(flight: Any, msgs: list[Any], cfg: Any, t: BoundTally) -> None:
+def score_bound(flight: Any, msgs: list[Any], cfg: Any, t: BoundTally, to_date: bool = True) -> None:
     """Run the navigator over the flight; at each fix with N_valid >= N_max, its dh error and the bounds."""
     from schemas.terrain_nav import TerrainFix
     from services.terrain_nav.core import TerrainNavigator
@@ -231,6 +252,7 @@ def score_bound(flight: Any, msgs: list[Any], cfg: Any, t: BoundTally) -> None:
 
     nav = TerrainNavigator(flight.world.ref_map, cfg)
     t_start = float(flight.t[0])
+    variants = bound_variants(flight.scenario)
     for msg in msgs:
         try:
             out = nav.step(msg)
@@ -244,11 +266,11 @@ def score_bound(flight: Any, msgs: list[Any], cfg: Any, t: BoundTally) -> None:
             t.err.append(m.vertical.mean[dh] - flight.truth_at(t_fix)["dh"])
             measq = nav.window.measq
             t_first, t_last = measq[0].t_first, measq[-1].t_last
-            t.crlb_window.append(fix_bound(flight, t_first, t_last, t_fix))
-            t.crlb_to_date.append(fix_bound(flight, t_start, t_last, t_fix))
-            sv = flight.scenario.sigma_vh_mps
-            drift_prior = {"dvx": sv, "dvz": sv} if sv > 0 else None  # the simulator's N(0, sigma_vh) per axis
-            t.crlb_window_drift.append(fix_bound(flight, t_first, t_last, t_fix, DRIFT_UNKNOWNS, drift_prior))
+            got = fix_bounds(flight, t_first, t_last, t_fix, variants)
+            if to_date:
+                got |= {"to_date_bayes": fix_bounds(flight, t_start, t_last, t_fix, {"b": variants["bayes"]})["b"]}
+            for k, v in got.items():
+                t.bounds.setdefault(k, []).append(v)
 
 
 def run(

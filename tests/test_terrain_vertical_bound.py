@@ -116,13 +116,14 @@ def test_the_mixture_quantile_of_equal_variances_is_the_normal_one(v: np.ndarray
 def test_the_estimator_is_not_below_the_bound_and_the_default_is_near_it() -> None:
     """Smooth terrain (H = 0.85), 6 flights of 66 s, fixes with N_valid >= N_max.
 
-    Per fix r = e^2 / CRLB (window data, unknowns dx, dz, dh, dV, da). Runs are independent (fixes within a run
-    are not), so the per-run means of r are the sample: an estimator at or above the bound has E[r] >= 1, and
-    the one-sided 99.9 % upper confidence limit of the mean must reach 1 (it would not if the bound were too
-    large or the scoring wrong). The default preset reads dh at the refined position (``refine_vertical``),
-    measured at MSE / mean CRLB = 1.07 over 30 bench flights. On this sample its mean r is 1.9 against 18 without
-    ``refine_vertical`` and 15 with the paper preset: it must stay below 4, and AT-15's accuracy part
-    (median < 2 m, p95 < 6 m) must hold.
+    Per fix r = e^2 / B, B the Bayesian bound over the window's samples (unknowns dx, dz, dh, dV, da, with the
+    simulator's N(0, sigma_da) prior on da: the estimator's P0 holds a prior on da too, so the prior-free CRLB
+    is not a bound on it; on rough terrain it does beat that one). Runs are independent (fixes within a run are
+    not), so the per-run means of r are the sample: any estimator has E[r] >= 1 (van Trees), and the one-sided
+    99.9 % upper confidence limit of the mean must reach 1 (it would not if the bound were too large or the
+    scoring wrong). The default preset reads dh at the refined position (``refine_vertical``): on this sample
+    its mean r is 3.3, against 34 without ``refine_vertical`` and 28 with the paper preset; it must stay below
+    8, and AT-15's accuracy part (median < 2 m, p95 < 6 m) must hold.
     """
     sc = FlightScenario(H=0.85, duration_s=66.0)
     cfg = TerrainNavConfig()
@@ -132,15 +133,14 @@ def test_the_estimator_is_not_below_the_bound_and_the_default_is_near_it() -> No
         w_seq, f_seq = np.random.SeedSequence([1616, run]).spawn(2)
         fl = simulate_flight(sc, make_world(sc, np.random.default_rng(w_seq)), np.random.default_rng(f_seq))
         t = BoundTally()
-        score_bound(fl, list(fl.messages()), cfg, t)
+        score_bound(fl, list(fl.messages()), cfg, t, to_date=False)
         if t.err:
-            per_run.append(float(np.mean(np.square(t.err) / np.asarray(t.crlb_window))))
+            per_run.append(float(np.mean(np.square(t.err) / np.asarray(t.bounds["bayes"]))))
         tally.err += t.err
-        tally.crlb_window += t.crlb_window
     assert len(per_run) >= 5 and len(tally.err) >= 30
     r = np.asarray(per_run)
     upper = r.mean() + student_t.ppf(0.999, r.size - 1) * r.std(ddof=1) / math.sqrt(r.size)
     assert upper >= 1.0, (r, upper)
-    assert r.mean() < 4.0, r
+    assert r.mean() < 8.0, r
     e = np.abs(tally.err)
     assert np.median(e) < 2.0 and np.percentile(e, 95) < 6.0
