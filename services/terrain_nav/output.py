@@ -34,6 +34,7 @@ from .resampler import CellMeasurement
 _U, _V = np.meshgrid([-1.0, 0.0, 1.0], [-1.0, 0.0, 1.0], indexing="ij")
 _DESIGN = np.stack([np.ones(9), _U.ravel(), _V.ravel(), _U.ravel() ** 2, (_U * _V).ravel(), _V.ravel() ** 2], axis=1)
 _PINV = np.linalg.pinv(_DESIGN)
+_READ_ROWS = 8  # measurements per bilinear call of the refinement
 
 
 def quadratic_hessian(block3x3: F64) -> F64:
@@ -108,23 +109,26 @@ def refine(
     bank = KalmanBank(dx.shape, cfg.P0, cfg.phi31, cfg.q_a, cfg.q_h)
     cost = np.zeros(dx.shape)
     used = 0
-    # the map reads of every measurement and offset in one call (row k: measurement k; elementwise the same
-    # arithmetic as one call per measurement, so the same values)
-    n = len(measq)
-    xm = np.fromiter((m.x_mean for m in measq), dtype=np.float64, count=n)
-    zm = np.fromiter((m.z_mean for m in measq), dtype=np.float64, count=n)
-    ui = (xm[:, None] + dx[None, :] - ref.x0_m) / ref.cell_m - 0.5
-    vi = (zm[:, None] + dz[None, :] - ref.z0_m) / ref.cell_m - 0.5
-    reads = bilinear(ref.dem, ui, vi)
-    for idx, m in enumerate(measq):
-        heights = reads[idx]
-        bank.predict(m.t)
-        R = measurement_variance(m.n, cfg.sigma_v_m, cfg.sigma_map_m, cfg.c_q, D1_m2)
-        nu = bank.innovation(heights, m.h_ra - m.h_ins)
-        if idx > 0 and not m.exclude:
-            cost += nu * nu
-            used += 1
-        bank.update(nu, R)
+    # the map reads of _READ_ROWS measurements at a time (elementwise the same arithmetic as one call per
+    # measurement, so the same values; blocks this size stay in cache, whole-window arrays were slower)
+    measq = list(measq)
+    e2 = np.empty(dx.shape)
+    for lo in range(0, len(measq), _READ_ROWS):
+        block = measq[lo : lo + _READ_ROWS]
+        xm = np.fromiter((m.x_mean for m in block), dtype=np.float64, count=len(block))
+        zm = np.fromiter((m.z_mean for m in block), dtype=np.float64, count=len(block))
+        ui = (xm[:, None] + dx[None, :] - ref.x0_m) / ref.cell_m - 0.5
+        vi = (zm[:, None] + dz[None, :] - ref.z0_m) / ref.cell_m - 0.5
+        reads = bilinear(ref.dem, ui, vi)
+        for row, m in enumerate(block):
+            bank.predict(m.t)
+            R = measurement_variance(m.n, cfg.sigma_v_m, cfg.sigma_map_m, cfg.c_q, D1_m2)
+            nu = bank.innovation(reads[row], m.h_ra - m.h_ins)
+            if lo + row > 0 and not m.exclude:
+                np.multiply(nu, nu, out=e2)
+                cost += e2
+                used += 1
+            bank.update(nu, R)
     centre = k * (2 * k + 1) + k
     best = int(np.nanargmin(cost))
     grid_cost = float(cost[centre])
