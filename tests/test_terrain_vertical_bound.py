@@ -82,10 +82,11 @@ def test_on_a_plane_with_the_offset_known_the_bound_is_that_of_a_line_fit() -> N
 def test_a_shared_map_cell_error_does_not_average_out() -> None:
     """n samples on one cell: var(dh) = sigma_v^2/n + sigma_map^2; on n cells: (sigma_v^2 + sigma_map^2)/n."""
     n, sv, sm = 40, 2.0, 3.0
-    one = SampleSet(t=np.arange(n) * 0.05, gx=np.zeros(n), gz=np.zeros(n), cells=[[((3, 4), 1.0)]] * n)
+    z, ones = np.zeros((n, 1), dtype=int), np.ones((n, 1))
+    one = SampleSet(t=np.arange(n) * 0.05, gx=np.zeros(n), gz=np.zeros(n), ci=z + 3, cj=z + 4, w=ones)
     G, names = design(one, 0.0, ("dh",))
     assert crlb(fisher(G, weight_matrix(one), sv, sm), names) == pytest.approx(sv**2 / n + sm**2, rel=1e-12)
-    many = SampleSet(t=one.t, gx=one.gx, gz=one.gz, cells=[[((k, 0), 1.0)] for k in range(n)])
+    many = SampleSet(t=one.t, gx=one.gx, gz=one.gz, ci=np.arange(n)[:, None], cj=z, w=ones)
     G, names = design(many, 0.0, ("dh",))
     assert crlb(fisher(G, weight_matrix(many), sv, sm), names) == pytest.approx((sv**2 + sm**2) / n, rel=1e-12)
 
