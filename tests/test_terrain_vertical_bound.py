@@ -22,6 +22,7 @@ from scipy.stats import t as student_t
 
 from services.terrain_nav.config import TerrainNavConfig
 from services.terrain_nav.maps import ReferenceMap
+from services.terrain_nav.offline import run_flight
 from services.terrain_nav.simulation import FlightScenario, World, make_world, simulate_flight
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # the repository root: the bound is bench code
@@ -145,3 +146,22 @@ def test_the_estimator_is_not_below_the_bound_and_the_default_is_near_it() -> No
     assert r.mean() < 8.0, r
     e = np.abs(tally.err)
     assert np.median(e) < 2.0 and np.percentile(e, 95) < 6.0
+
+
+def test_refine_vertical_changes_only_the_vertical_block() -> None:
+    """The replay's dh replaces the grid filter's: the verdicts, positions and horizontal covariances are those
+    of the same preset without it, and dh moves (by the quantisation bias the grid filter carried)."""
+    sc = FlightScenario(H=0.85, duration_s=66.0)
+    moved = 0
+    for run in range(2):
+        w_seq, f_seq = np.random.SeedSequence([1616, run]).spawn(2)
+        fl = simulate_flight(sc, make_world(sc, np.random.default_rng(w_seq)), np.random.default_rng(f_seq))
+        on = run_flight(fl, TerrainNavConfig())
+        off = run_flight(fl, TerrainNavConfig(refine_vertical=False))
+        assert [v.model_dump() for v in on.verdicts] == [v.model_dump() for v in off.verdicts]
+        assert len(on.fixes) == len(off.fixes) > 0
+        for a, b in zip(on.fixes, off.fixes, strict=True):
+            assert (a.dx_m, a.dz_m, a.estimate) == (b.dx_m, b.dz_m, b.estimate)
+            assert a.refined and b.refined
+            moved += a.vertical.mean != b.vertical.mean
+    assert moved > 0
