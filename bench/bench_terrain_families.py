@@ -14,7 +14,8 @@
 
 Families: Hurst exponent (roughness), von Karman correlation length, relief (RMS adjacent-cell change),
 a low-relief map, a coarse partly flat map (2.4 km cells, mountains on one side and a plain on the other)
-and a turning flight (waypoints). Presets: ``paper`` (the digest's §6) and ``robust`` (C3 floor, slope term); a
+and a turning flight (waypoints). Presets: ``paper`` (the digest's §6) and ``robust`` (C3 floor, slope term, refinement,
+δh from the refinement's replay); a
 preset may carry options after ``+``: ``robust+refine`` (``refine: true``), ``robust+mu2=0.5`` (JSON values).
 """
 
