@@ -14,7 +14,8 @@
 
 Families: Hurst exponent (roughness), von Karman correlation length, relief (RMS adjacent-cell change),
 a low-relief map, a coarse partly flat map (2.4 km cells, mountains on one side and a plain on the other)
-and a turning flight (waypoints). Presets: ``paper`` (the digest's §6) and ``robust`` (C3 floor, slope term); a
+and a turning flight (waypoints). Presets: ``paper`` (the digest's §6) and ``robust`` (C3 floor, slope term, refinement,
+δh from the refinement's replay); a
 preset may carry options after ``+``: ``robust+refine`` (``refine: true``), ``robust+mu2=0.5`` (JSON values).
 """
 
@@ -117,6 +118,13 @@ class Tally:
         }
 
 
+def preset_config(preset: str) -> TerrainNavConfig:
+    """``paper``, ``robust`` or a preset with options after ``+``: ``robust+refine`` (true), ``robust+mu2=0.5``."""
+    name, *opts = preset.split("+")
+    kv = [o.split("=", 1) if "=" in o else [o, "true"] for o in opts]
+    return TerrainNavConfig.model_validate({"preset": name, **{k: json.loads(v) for k, v in kv}})
+
+
 def turning_path(sc: FlightScenario, rng: np.random.Generator):  # type: ignore[no-untyped-def]
     """An L-shaped flight: 8 km north, a 90 deg right turn at 3 deg/s, 8 km east (map frame: x, z)."""
     c = sc.cell_m
@@ -147,10 +155,7 @@ def run_family(
         flight = simulate_flight(sc, world, np.random.default_rng(f_seq), path)
         msgs = list(flight.messages())
         for preset in presets:
-            name, *opts = preset.split("+")
-            kv = [o.split("=", 1) if "=" in o else [o, "true"] for o in opts]
-            cfg = TerrainNavConfig.model_validate({"preset": name, **{k: json.loads(v) for k, v in kv}})
-            score_run(flight, msgs, cfg, tallies[preset], fam.turn, posterior)
+            score_run(flight, msgs, preset_config(preset), tallies[preset], fam.turn, posterior)
         if on_run is not None:
             on_run(tallies)
     return {p: t.row() for p, t in tallies.items()}

@@ -94,13 +94,36 @@ def speedup(rate_hz: float, runs: int) -> dict[str, float]:
     }
 
 
-def update_cost(M: int, n_meas: int = 400) -> dict[str, float]:
+def preset_cost(runs: int) -> dict[str, float]:
+    """CPU ms per 20 Hz flight (push_sample) of the paper and robust presets, interleaved on the same flights,
+    and per fix: robust's extra cost over paper divided by its fixes (the refinement's replay)."""
+    t = {"paper": 0.0, "robust": 0.0}
+    fixes = 0
+    for seed in range(runs):
+        fl = simulate(FlightScenario(), 500 + seed)
+        ref = fl.world.ref_map
+        samples = _samples(fl)
+        for preset in t:
+            nav = TerrainNavigator(ref, TerrainNavConfig(preset=preset))
+            t[preset] += _cpu(nav, samples)
+            if preset == "robust":
+                fixes += nav.counters["fixes"]
+    return {
+        "paper_ms_per_flight": 1e3 * t["paper"] / runs,
+        "robust_ms_per_flight": 1e3 * t["robust"] / runs,
+        "robust_extra_ms_per_fix": 1e3 * (t["robust"] - t["paper"]) / max(fixes, 1),
+        "fixes_per_flight": fixes / runs,
+        "runs": runs,
+    }
+
+
+def update_cost(M: int, n_meas: int = 400, preset: str = "paper") -> dict[str, float]:
     """CPU microseconds per cell-rate update and per evaluation (with fix formation) over a (2M+1)^2 grid."""
     rng = np.random.default_rng(1)
     n_i, n_j = 2 * M + 200, 2 * M + 40
     dem = make_terrain("informative", (n_i, n_j), rng)
     ref = ReferenceMap(dem=dem, cell_m=125.0)
-    cfg = TerrainNavConfig(preset="paper", M_x=M, M_z=M, N_p=4)
+    cfg = TerrainNavConfig(preset=preset, M_x=M, M_z=M, N_p=4)
     nav = TerrainNavigator(ref, cfg)
     J = n_j // 2
     meas = [
@@ -165,6 +188,8 @@ def main() -> None:
     s20 = speedup(20.0, 30)
     s8 = speedup(8.0, 30)
     u51 = update_cost(25, n_meas=800)
+    u51r = update_cost(25, n_meas=800, preset="robust")
+    pc = preset_cost(10)
     u201 = update_cost(100, n_meas=200)
     mem = window_memory()
     rows = [
@@ -191,6 +216,16 @@ def main() -> None:
             f"evaluation + fix {u51['evaluation_us']:.0f} µs per group",
         ),
         (
+            "same, robust preset (refinement at every fix)",
+            f"{u51r['update_us']:.0f} µs",
+            f"evaluation + fix {u51r['evaluation_us']:.0f} µs per group",
+        ),
+        (
+            "20 Hz flight, paper / robust preset (push_sample)",
+            f"{pc['paper_ms_per_flight']:.1f} / {pc['robust_ms_per_flight']:.1f} ms",
+            f"robust's extra {pc['robust_extra_ms_per_fix']:.2f} ms per fix, {pc['fixes_per_flight']:.1f} fixes/flight",
+        ),
+        (
             "cell-rate update, 201 x 201 grid",
             f"{u201['update_us']:.0f} µs",
             f"evaluation + fix {u201['evaluation_us']:.0f} µs per group",
@@ -205,7 +240,15 @@ def main() -> None:
         "terrain_nav",
         ["figure", "value", "detail"],
         rows,
-        {"speedup_20hz": s20, "speedup_8hz": s8, "update_51": u51, "update_201": u201, "window_memory": mem},
+        {
+            "speedup_20hz": s20,
+            "speedup_8hz": s8,
+            "update_51": u51,
+            "update_51_robust": u51r,
+            "presets_20hz": pc,
+            "update_201": u201,
+            "window_memory": mem,
+        },
     )
 
 

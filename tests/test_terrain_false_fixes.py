@@ -51,7 +51,8 @@ def test_the_paper_preset_is_the_digest_configuration_and_robust_the_default() -
     assert robust.c3_floor == 0.5 and TerrainNavConfig(preset="robust", c3_floor=0.25).c3_floor == 0.25
     assert robust.vertical_slope_term and not TerrainNavConfig(preset="paper").vertical_slope_term
     assert robust.refine and robust.refine_sigma_floor_cells == 0.3 and not TerrainNavConfig(preset="paper").refine
-    robust_only = {"preset", "c3_floor", "vertical_slope_term", "refine", "refine_sigma_floor_cells"}
+    assert robust.refine_vertical and not TerrainNavConfig(preset="paper").refine_vertical
+    robust_only = {"preset", "c3_floor", "vertical_slope_term", "refine", "refine_sigma_floor_cells", "refine_vertical"}
     assert robust.model_dump(exclude=robust_only) == TerrainNavConfig(preset="paper").model_dump(exclude=robust_only)
 
 

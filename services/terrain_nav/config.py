@@ -19,7 +19,13 @@ PRESETS: dict[str, dict[str, Any]] = {
     # residual level the model expects ("False fixes on coarse and partly flat maps"), the slope term of the
     # vertical channel ("The vertical channel over smooth terrain") and the sub-cell refinement of §2.6 with a
     # sigma floor of 0.3 cell (one-cell slips on low relief and coarse maps, "Terrain families")
-    "robust": {"c3_floor": 0.5, "vertical_slope_term": True, "refine": True, "refine_sigma_floor_cells": 0.3},
+    "robust": {
+        "c3_floor": 0.5,
+        "vertical_slope_term": True,
+        "refine": True,
+        "refine_sigma_floor_cells": 0.3,
+        "refine_vertical": True,
+    },
 }
 
 
@@ -127,6 +133,13 @@ class TerrainNavConfig(BaseModel):
     refine_radius_cells: float = Field(default=1.0, gt=0.0, le=3.0, description="refinement half-width, cells [D]")
     refine_sigma_floor_cells: float = Field(
         default=0.1, ge=0.0, description="floor of each sigma of a refined fix, cells (simulation rms 0.09) [D]"
+    )
+    refine_vertical: bool = Field(
+        default=False,
+        description="a refined fix takes dh, dV and their covariance from the refinement's replay at the refined "
+        "offset (bilinear map reads at the aircraft's positions) instead of the grid filter (cell-centre reads, "
+        "whose quantisation error is correlated along the track over smooth terrain); the slope term then adds "
+        "g^T Cov_xz g only (issue 16) [robust]",
     )
     cell_centre_conversion: bool = Field(
         default=True, description="add the mean (cell centre - INS) term to i*cell, j*cell (§2.6) [D]"

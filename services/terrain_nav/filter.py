@@ -44,6 +44,7 @@ class KalmanBank:
         self.t_prev: float | None = None
         self._nu: F64 = np.empty(shape)
         self._tmp: F64 = np.empty(shape)
+        self._tmp3: F64 = np.empty((3, *shape))
 
     @property
     def P(self) -> F64:
@@ -113,13 +114,9 @@ class KalmanBank:
         a, b, c, d, e, g = self._p
         Sk = g + R
         k0, k1, k2 = c / Sk, e / Sk, g / Sk
-        x, tmp = self.x, self._tmp
-        np.multiply(nu, k0, out=tmp)
-        x[0] += tmp
-        np.multiply(nu, k1, out=tmp)
-        x[1] += tmp
-        np.multiply(nu, k2, out=tmp)
-        x[2] += tmp
+        # x[i] += K_i nu for the three states at once (K_i nu == nu K_i exactly: the same values as row by row)
+        np.multiply.outer((k0, k1, k2), nu, out=self._tmp3)
+        self.x += self._tmp3
 
         def j(pi: float, pj: float, ki: float, kj: float, pij: float) -> float:
             return pij - ki * pj - pi * kj + Sk * ki * kj

@@ -219,6 +219,11 @@ class ModifiedSearch:
         cov, degenerate = grid_covariance(self.window.F, a, b, n_valid, D_thr, ref.cell_m)
         dx0, dz0 = dx, dz
         refined = False
+        s = self.bank.x[:, a, b]
+        P = self.bank.P
+        dh, dvh = float(s[2]), float(s[1])
+        cov_vert = np.array([[P[1, 1], P[1, 2]], [P[2, 1], P[2, 2]]])
+        at_position = False  # dh read at the fix's position (the refinement's replay) rather than the centres
         if cfg.refine:
             r = refine(measq, ref, cfg, self.D1, dx, dz)
             if r.accepted:
@@ -226,15 +231,14 @@ class ModifiedSearch:
                 dx, dz = r.dx_m, r.dz_m
                 if r.cov_m2 is not None:
                     cov, degenerate = r.cov_m2, False
-        s = self.bank.x[:, a, b]
-        P = self.bank.P
-        dh, dvh = float(s[2]), float(s[1])
-        cov_vert = np.array([[P[1, 1], P[1, 2]], [P[2, 1], P[2, 2]]])
+                if cfg.refine_vertical and r.cov_vert is not None:
+                    dh, dvh, cov_vert, at_position = r.dh_m, r.dvh_mps, r.cov_vert, True
         if cfg.vertical_slope_term:
-            # dh is the altitude error at the cell centres: move it to the fix's position and add the slope times
-            # the position's uncertainty (models.py)
+            # the grid filter's dh is the altitude error at the cell centres: move it to the fix's position; either
+            # way add the slope times the position's uncertainty (models.py)
             g = mean_slope(measq, ref, i_star, j_star)
-            dh += float(g[0] * (dx - dx0) + g[1] * (dz - dz0))
+            if not at_position:
+                dh += float(g[0] * (dx - dx0) + g[1] * (dz - dz0))
             cov_vert[1, 1] += float(g @ cov @ g)
         return FixData(
             dx_m=dx,

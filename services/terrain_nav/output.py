@@ -9,7 +9,9 @@
   H (or a minimum on the grid edge) gives the fallback ``((D_thr + 0.5) cell)^2 I`` and ``cov_degenerate``.
 * Refinement [P idea, D method]: the stored window profile is replayed through the same 3-state filter over
   sub-cell offsets around the grid estimate with bilinear map reads; the best offset is accepted if its cost
-  is not above the cost of the grid estimate recomputed the same way.
+  is not above the cost of the grid estimate recomputed the same way. The replay's filter at the best offset
+  also gives dh and dV read at the aircraft's (refined) positions rather than at the cell centres
+  (``refine_vertical``).
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from .resampler import CellMeasurement
 _U, _V = np.meshgrid([-1.0, 0.0, 1.0], [-1.0, 0.0, 1.0], indexing="ij")
 _DESIGN = np.stack([np.ones(9), _U.ravel(), _V.ravel(), _U.ravel() ** 2, (_U * _V).ravel(), _V.ravel() ** 2], axis=1)
 _PINV = np.linalg.pinv(_DESIGN)
+_READ_ROWS = 8  # measurements per bilinear call of the refinement
 
 
 def quadratic_hessian(block3x3: F64) -> F64:
@@ -83,6 +86,9 @@ class Refinement:
     grid_cost: float
     accepted: bool
     cov_m2: F64 | None
+    dh_m: float = 0.0  # the replay filter's dh and dV at the best offset, at the newest measurement
+    dvh_mps: float = 0.0
+    cov_vert: F64 | None = None  # [[P_VV, P_Vh], [P_hV, P_hh]] of the replay (shared by all offsets)
 
 
 def refine(
@@ -103,17 +109,26 @@ def refine(
     bank = KalmanBank(dx.shape, cfg.P0, cfg.phi31, cfg.q_a, cfg.q_h)
     cost = np.zeros(dx.shape)
     used = 0
-    for idx, m in enumerate(measq):
-        ui = (m.x_mean + dx - ref.x0_m) / ref.cell_m - 0.5
-        vi = (m.z_mean + dz - ref.z0_m) / ref.cell_m - 0.5
-        heights = bilinear(ref.dem, ui, vi)
-        bank.predict(m.t)
-        R = measurement_variance(m.n, cfg.sigma_v_m, cfg.sigma_map_m, cfg.c_q, D1_m2)
-        nu = bank.innovation(heights, m.h_ra - m.h_ins)
-        if idx > 0 and not m.exclude:
-            cost += nu * nu
-            used += 1
-        bank.update(nu, R)
+    # the map reads of _READ_ROWS measurements at a time (elementwise the same arithmetic as one call per
+    # measurement, so the same values; blocks this size stay in cache, whole-window arrays were slower)
+    measq = list(measq)
+    e2 = np.empty(dx.shape)
+    for lo in range(0, len(measq), _READ_ROWS):
+        block = measq[lo : lo + _READ_ROWS]
+        xm = np.fromiter((m.x_mean for m in block), dtype=np.float64, count=len(block))
+        zm = np.fromiter((m.z_mean for m in block), dtype=np.float64, count=len(block))
+        ui = (xm[:, None] + dx[None, :] - ref.x0_m) / ref.cell_m - 0.5
+        vi = (zm[:, None] + dz[None, :] - ref.z0_m) / ref.cell_m - 0.5
+        reads = bilinear(ref.dem, ui, vi)
+        for row, m in enumerate(block):
+            bank.predict(m.t)
+            R = measurement_variance(m.n, cfg.sigma_v_m, cfg.sigma_map_m, cfg.c_q, D1_m2)
+            nu = bank.innovation(reads[row], m.h_ra - m.h_ins)
+            if lo + row > 0 and not m.exclude:
+                np.multiply(nu, nu, out=e2)
+                cost += e2
+                used += 1
+            bank.update(nu, R)
     centre = k * (2 * k + 1) + k
     best = int(np.nanargmin(cost))
     grid_cost = float(cost[centre])
@@ -136,4 +151,15 @@ def refine(
             for i in range(2):
                 cov_cells[i, i] = max(cov_cells[i, i], floor)
             cov = cov_cells * ref.cell_m**2
-    return Refinement(float(dx[best]), float(dz[best]), float(cost[best]), grid_cost, accepted, cov)
+    P = bank.P
+    return Refinement(
+        float(dx[best]),
+        float(dz[best]),
+        float(cost[best]),
+        grid_cost,
+        accepted,
+        cov,
+        dh_m=float(bank.x[2, best]),
+        dvh_mps=float(bank.x[1, best]),
+        cov_vert=np.array([[P[1, 1], P[1, 2]], [P[2, 1], P[2, 2]]]),
+    )
