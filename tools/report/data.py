@@ -321,4 +321,13 @@ def run_data(
     )
 
 
-__all__ = ["RunData", "ScenarioChoice", "TruthSeries", "cut_short", "find_scenario", "run_data", "split", "truth_series"]
+__all__ = [
+    "RunData",
+    "ScenarioChoice",
+    "TruthSeries",
+    "cut_short",
+    "find_scenario",
+    "run_data",
+    "split",
+    "truth_series",
+]
