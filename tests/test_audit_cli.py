@@ -24,7 +24,7 @@ from shared import codec, settings
 from shared.service import Output, Service, Subscription
 from shared.settings import ServiceSettings
 from tools.cli import exit_codes, status
-from tools.cli.common import port_number
+from tools.cli.common import connect_timeout, port_number
 from tools.cli.main import main
 
 
@@ -83,6 +83,14 @@ def test_a_port_is_taken_exactly_when_it_is_within_0_to_65535(port: int) -> None
     else:
         with pytest.raises(argparse.ArgumentTypeError):
             port_number(str(port))
+
+
+@pytest.mark.parametrize("text", ["-5", "-1.5", "nan", "soon"])
+def test_a_connect_timeout_below_minus_1_is_a_usage_error(text: str) -> None:
+    """It went unchecked into the settings (model_copy does not validate): -5 retried forever."""
+    with pytest.raises(argparse.ArgumentTypeError):
+        connect_timeout(text)
+    assert [connect_timeout(t) for t in ("-1", "0", "2.5")] == [-1.0, 0.0, 2.5]
 
 
 def test_record_refuses_an_out_dir_it_cannot_create(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

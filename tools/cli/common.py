@@ -23,7 +23,7 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--connect-timeout",
-        type=float,
+        type=connect_timeout,
         help="seconds to keep retrying the router before giving up (default: $FIXSTREAM_ZENOH_CONNECT_TIMEOUT_S or 5)",
     )
     g.add_argument("--listen", action="append", help="endpoint to listen on (repeatable)")
@@ -38,6 +38,17 @@ def key_expr(text: str) -> str:
         return str(zenoh.KeyExpr(text))
     except zenoh.ZError:
         raise argparse.ArgumentTypeError(f"not a valid Zenoh key expression: {text!r}") from None
+
+
+def connect_timeout(text: str) -> float:
+    """argparse ``type=``: seconds, -1 (forever) or more (ZenohSettings' bound, which ``model_copy`` does not check)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number of seconds: {text!r}") from None
+    if not value >= -1.0:  # NaN too
+        raise argparse.ArgumentTypeError(f"{text} s: must be >= 0, or -1 to retry forever")
+    return value
 
 
 def port_number(text: str) -> int:
