@@ -212,6 +212,9 @@ class Service:
         #: keys received on, declared to the session (None: the declaration failed; not retried)
         self._wire_keys: dict[str, zenoh.KeyExpr | None] = {}
         self._last_stamp: dict[str, int] = {}
+        #: the data clock: stamp of the last message a handler took (a start marker sets it back); what a diagnostic
+        #: about a payload without a usable stamp, or about no payload, is stamped with
+        self.data_clock_ns = 0
         self._limiter = _DiagLimiter(self.diag_rate_hz, self.diag_burst)
         self.diag_suppressed = 0
         self._declared: list[Any] = []
@@ -355,8 +358,9 @@ class Service:
         self._publisher_model[key] = model
         return pub
 
-    def reject(self, key: str, reason: str, detail: str = "", stamp_ns: int = 0) -> None:
-        """Count a rejected input and report it on the diag key (rate-limited per reason)."""
+    def reject(self, key: str, reason: str, detail: str = "", stamp_ns: int | None = None) -> None:
+        """Count a rejected input and report it on the diag key (rate-limited per reason), stamped ``stamp_ns``
+        (None: the data clock)."""
         c = self.counters
         c.rejected += 1
         c.rejected_by_reason[reason] += 1
@@ -381,7 +385,7 @@ class Service:
         *,
         n: int = 1,
         level: Literal["info", "warning", "error"] = "warning",
-        stamp_ns: int = 0,
+        stamp_ns: int | None = None,
         report: bool = True,
     ) -> None:
         """Count an event the service noticed in an input it took (not a refusal) in ``events``, and report it on the
@@ -399,12 +403,15 @@ class Service:
         count: int,
         counts: dict[str, int],
         level: Literal["info", "warning", "error"] = "warning",
-        stamp_ns: int = 0,
+        stamp_ns: int | None = None,
     ) -> None:
-        """Publish a Diagnostic (rate-limited per reason online; counts are never lost, only messages)."""
+        """Publish a Diagnostic stamped ``stamp_ns`` (None: the data clock), rate-limited per reason online; counts
+        are never lost, only messages."""
         if self.session is not None and self.diag_rate_hz > 0 and not self._limiter.allow(reason, time.monotonic()):
             self.diag_suppressed += 1
             return
+        if stamp_ns is None:
+            stamp_ns = self.data_clock_ns
         try:
             self._publish_diag(key, reason, detail, count, counts, level, stamp_ns)
         except Exception:  # a diagnostic that cannot go out is logged; the counts it carried are kept
@@ -513,6 +520,7 @@ class Service:
                 count=self.seq.events["seq_gap"],
                 counts=self.seq.as_dict(),
                 level="warning",
+                stamp_ns=stamp,
             )
         elif check.event == "duplicate":
             return False
@@ -567,15 +575,26 @@ class Service:
                 raise InputRejected("unexpected_type", f"{type(msg).__name__} on {key}; expects {allowed}")
             if sub.monotonic:
                 self._check_monotonic(key, msg)
-            return sub.handler(key, msg) or ()
+            outputs = sub.handler(key, msg) or ()
+            if msg.header.stamp_ns > self.data_clock_ns:
+                self.data_clock_ns = msg.header.stamp_ns
+            return outputs
         except codec.DecodeError as exc:
-            self.reject(key, exc.reason, exc.detail)
+            self.reject(key, exc.reason, exc.detail, self._stamp_of(obj))
         except InputRejected as exc:
-            self.reject(key, exc.reason, exc.detail)
+            self.reject(key, exc.reason, exc.detail, self._stamp_of(obj))
         except Exception as exc:  # a bug must not kill the service; it is reported like bad input
             log.error("%s: handler failed on %s:\n%s", self.source, key, traceback.format_exc())
-            self.reject(key, "internal_error", f"{type(exc).__name__}: {exc}")
+            self.reject(key, "internal_error", f"{type(exc).__name__}: {exc}", self._stamp_of(obj))
         return None
+
+    def _stamp_of(self, obj: Any) -> int:
+        """What a diagnostic about the unpacked payload ``obj`` is stamped with: its header's stamp when the header
+        unpacks and the stamp is within the input bound, else the data clock."""
+        header = codec.header_of(obj)
+        if header is not None and 0 <= header[2] <= MAX_INPUT_STAMP_NS:
+            return header[2]
+        return self.data_clock_ns
 
     def _on_marker(self, marker: ScenarioMarker) -> list[Output]:
         """A start marker ends a run still pending; an end marker waits for what it announced (module doc)."""
@@ -583,6 +602,7 @@ class Service:
         if not source.startswith(PLAYER_PREFIX):
             raise InputRejected("foreign_marker", f"{marker.event} marker from {source!r}, not a player")
         if marker.event == "start":
+            self.data_clock_ns = marker.header.stamp_ns  # a new run: its stamps start again
             out = self._end_scenario(force=True, publish=False) if self._pending_end is not None else []
             self.seq.forget_source(source)  # the player counts its seq from 0 again
             return out + list(self.on_scenario_start(marker) or ())

@@ -8,7 +8,9 @@ A file named by ``FIXSTREAM_CONFIG_FILE`` supplies defaults that environment var
 
 from __future__ import annotations
 
+import difflib
 import json
+import logging
 import os
 from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
@@ -17,7 +19,10 @@ import yaml
 from pydantic import BaseModel, BeforeValidator, Field, ValidationError, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
+from .errors import StartupError
 from .local_stack import default_connect, default_tls
+
+log = logging.getLogger(__name__)
 
 
 def _split_list(value: Any) -> Any:
@@ -87,13 +92,65 @@ class ZenohSettings(BaseSettings):
 
 
 def _file_defaults() -> dict[str, Any]:
+    """The settings of ``$FIXSTREAM_CONFIG_FILE`` (none if unset); :class:`StartupError` (one line) for a file that
+    cannot be read, is not YAML/JSON or is not a mapping of settings."""
     path = os.environ.get("FIXSTREAM_CONFIG_FILE")
     if not path:
         return {}
-    data = yaml.safe_load(Path(path).read_text())
+    where = f"FIXSTREAM_CONFIG_FILE={path}"
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+    except OSError as exc:
+        raise StartupError(f"{where}: cannot read: {exc.strerror or exc}") from None
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise StartupError(f"{where}: not valid YAML/JSON: {' '.join(str(exc).split())}") from None
+    if data is None:  # an empty file
+        return {}
     if not isinstance(data, dict):
-        raise ValueError(f"{path}: expected a mapping at the top level")
+        raise StartupError(f"{where}: expected a mapping of settings at the top level, got {type(data).__name__}")
     return data
+
+
+def _candidates(cls: type[BaseSettings], delimiter: str) -> list[str]:
+    """The variable names (without the prefix) ``cls`` reads: its fields and, with a nested delimiter, its nested
+    models' fields (``CORE__PRESET``)."""
+    names = []
+    for name, info in cls.model_fields.items():
+        names.append(name.upper())
+        sub = info.annotation
+        if delimiter and isinstance(sub, type) and issubclass(sub, BaseModel):
+            names.extend(f"{name}{delimiter}{inner}".upper() for inner in sub.model_fields)
+    return names
+
+
+#: unknown environment variables already warned about (once per process)
+_warned_env: set[str] = set()
+
+
+def _warn_unknown_env(cls: type[BaseSettings]) -> None:
+    """One warning per ``FIXSTREAM_<SERVICE>_*`` variable that no field of ``cls`` reads, naming the nearest one.
+
+    Only a service's own prefix is looked at (``FIXSTREAM_LBL_NAV_`` for lbl_nav): ``FIXSTREAM_ZENOH_*``,
+    ``FIXSTREAM_LOG_*``, the other services' variables and the base settings (``FIXSTREAM_INSTANCE``) share the
+    environment of a stack and are not this class's to judge."""
+    prefix = str(cls.model_config.get("env_prefix") or "").upper()
+    if prefix in ("", "FIXSTREAM_"):
+        return
+    delimiter = str(cls.model_config.get("env_nested_delimiter") or "").upper()
+    known = {name.upper() for name in cls.model_fields}
+    for var in sorted(os.environ):
+        upper = var.upper()
+        if not upper.startswith(prefix) or upper in _warned_env:
+            continue
+        field = upper[len(prefix) :]
+        if delimiter:
+            field = field.split(delimiter, 1)[0]
+        if field in known:
+            continue
+        _warned_env.add(upper)
+        near = difflib.get_close_matches(upper[len(prefix) :], _candidates(cls, delimiter), n=1)
+        hint = f"; did you mean {prefix}{near[0]}?" if near else ""
+        log.warning("%s is not a setting of %s and is ignored%s", var, cls.__name__, hint)
 
 
 class ServiceSettings(BaseSettings):
@@ -137,6 +194,7 @@ class ServiceSettings(BaseSettings):
         """File defaults < environment < explicit overrides. A missing or invalid setting raises pydantic's
         ValidationError; the command line turns it into one line naming the environment variable
         (:func:`settings_error_message`)."""
+        _warn_unknown_env(cls)
         file_data = {k: v for k, v in _file_defaults().items() if k in cls.model_fields}
         env_view = cls()  # environment (and defaults)
         merged = {**file_data, **env_view.model_dump(exclude_unset=True), **overrides}

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import os
+from pathlib import Path
 
+from shared.errors import StartupError
 from shared.settings import ZenohSettings
 
 #: a command-line client waits less for its router than a service does (a user is waiting at the prompt)
@@ -20,7 +23,7 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--connect-timeout",
-        type=float,
+        type=connect_timeout,
         help="seconds to keep retrying the router before giving up (default: $FIXSTREAM_ZENOH_CONNECT_TIMEOUT_S or 5)",
     )
     g.add_argument("--listen", action="append", help="endpoint to listen on (repeatable)")
@@ -35,6 +38,55 @@ def key_expr(text: str) -> str:
         return str(zenoh.KeyExpr(text))
     except zenoh.ZError:
         raise argparse.ArgumentTypeError(f"not a valid Zenoh key expression: {text!r}") from None
+
+
+def connect_timeout(text: str) -> float:
+    """argparse ``type=``: seconds, -1 (forever) or more (ZenohSettings' bound, which ``model_copy`` does not check)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number of seconds: {text!r}") from None
+    if not value >= -1.0:  # NaN too
+        raise argparse.ArgumentTypeError(f"{text} s: must be >= 0, or -1 to retry forever")
+    return value
+
+
+def port_number(text: str) -> int:
+    """argparse ``type=``: a TCP port, 0-65535 (a usage error otherwise, exit code 2)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"port {value} out of range (0-65535)")
+    return value
+
+
+def ensure_dir(path: Path) -> None:
+    """Create the directory ``path`` (and its parents) if missing; :class:`StartupError` (one line, exit code 2) when
+    it is not a directory or cannot be created."""
+    if path.exists() and not path.is_dir():
+        raise StartupError(f"{path}: exists and is not a directory")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise StartupError(f"{path}: cannot create the directory: {exc.strerror or exc}") from None
+
+
+def check_output_file(path: Path) -> None:
+    """Before long work: :class:`StartupError` unless the file ``path`` can be written (its directory is created;
+    a file created to try is removed again)."""
+    if path.is_dir():
+        raise StartupError(f"{path}: is a directory (give a file name)")
+    ensure_dir(path.parent)
+    existed = path.exists()
+    try:
+        with open(path, "a"):
+            pass
+    except OSError as exc:
+        raise StartupError(f"{path}: cannot write: {exc.strerror or exc}") from None
+    if not existed:
+        os.unlink(path)
 
 
 def zenoh_settings_from(args: argparse.Namespace) -> ZenohSettings:

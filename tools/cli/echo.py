@@ -8,7 +8,8 @@ too (``<key> !! <reason>: <detail>``), never skipped.
 list items by index (``header.stamp_ns``, ``position_m.2`` or ``position_m[2]``, ``plots.0.range_m``).
 Repeat it for several fields: one line per message, ``<key> <value>`` for one field, ``<key> path=value ...`` for
 more (values as JSON); with ``--json``, ``{"key", "schema", "fields": {path: value}}``. A message that lacks a
-field (another type on a wildcard) is skipped and does not count towards ``--count``.
+field (another type on a wildcard) is skipped and does not count towards ``--count``; when no message had the
+field, echo ends with a line on stderr naming it and the fields the messages have.
 
 ``--once`` stops after the first message, ``--count N`` after N, ``--timeout S`` after S seconds.
 
@@ -75,10 +76,34 @@ def _path_text(path: tuple[str | int, ...]) -> str:
     return ".".join(str(p) for p in path)
 
 
+class Misses:
+    """The messages ``--field`` skipped: per missing path, how many; per message type, its top-level fields."""
+
+    def __init__(self) -> None:
+        self.paths: dict[str, int] = {}
+        self.fields_of: dict[str, list[str]] = {}
+
+    def add(self, path: str, schema: str, message: dict[str, Any]) -> None:
+        self.paths[path] = self.paths.get(path, 0) + 1
+        self.fields_of.setdefault(schema, list(message))
+
+    def hint(self) -> str:
+        """One line: which field matched nothing and the fields the messages have."""
+        paths = ", ".join(f"--field {p} ({n} message{'s' if n != 1 else ''})" for p, n in self.paths.items())
+        have = "; ".join(f"{schema}: {', '.join(names)}" for schema, names in sorted(self.fields_of.items()))
+        return f"no such field in the messages received: {paths}; their fields are {have}"
+
+
 def format_line(
-    key: str, payload: bytes, encoding: str, as_json: bool, fields: list[tuple[str | int, ...]] | None = None
+    key: str,
+    payload: bytes,
+    encoding: str,
+    as_json: bool,
+    fields: list[tuple[str | int, ...]] | None = None,
+    misses: Misses | None = None,
 ) -> str | None:
-    """The line to print for one sample; None when ``fields`` are asked and the message lacks one of them."""
+    """The line to print for one sample; None when ``fields`` are asked and the message lacks one of them (noted
+    in ``misses``)."""
     import json
 
     from shared import codec
@@ -92,10 +117,14 @@ def format_line(
     schema = type(msg).__name__
     if fields:
         dumped = msg.model_dump(mode="json")
-        try:
-            values = {_path_text(p): extract(dumped, p) for p in fields}
-        except MissingField:
-            return None
+        values: dict[str, Any] = {}
+        for p in fields:
+            try:
+                values[_path_text(p)] = extract(dumped, p)
+            except MissingField:
+                if misses is not None:
+                    misses.add(_path_text(p), schema, dumped)
+                return None
         if as_json:
             return json.dumps({"key": key, "schema": schema, "fields": values})
         if len(values) == 1:
@@ -118,9 +147,10 @@ def run(args: argparse.Namespace) -> int:
         return exit_codes.USAGE
     wanted = 1 if args.once else args.count
     printed = 0
+    misses = Misses()
     with Listener(args, args.key_expr) as listener:
         for sample in listener.samples(args.timeout):
-            line = format_line(sample.key, sample.payload, sample.encoding, args.json, args.field)
+            line = format_line(sample.key, sample.payload, sample.encoding, args.json, args.field, misses)
             if line is None:
                 continue
             print(line, flush=True)
@@ -128,6 +158,8 @@ def run(args: argparse.Namespace) -> int:
             if wanted and printed >= wanted:
                 return exit_codes.OK
         stopped = listener.stopped.is_set()
+    if printed == 0 and misses.paths:
+        print(f"fixstream echo: {misses.hint()}", file=sys.stderr)
     if wanted and not stopped:
         print(
             f"fixstream echo: {printed} of {wanted} messages on {args.key_expr} in {args.timeout:g} s", file=sys.stderr

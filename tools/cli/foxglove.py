@@ -22,12 +22,12 @@ from __future__ import annotations
 
 import argparse
 
-from .common import add_zenoh_arguments, key_expr
+from .common import add_zenoh_arguments, key_expr, port_number
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", default="127.0.0.1", help="address to serve on (0.0.0.0: every interface)")
-    parser.add_argument("--port", type=int, default=8765, help="WebSocket port (0: a free one)")
+    parser.add_argument("--port", type=port_number, default=8765, help="WebSocket port (0: a free one)")
     parser.add_argument(
         "--allow-origin",
         action="append",

@@ -4,13 +4,16 @@ Each run simulates the scenario with the seed sequence ``SeedSequence(S).spawn(N
 events to the scenario's estimator cores (``services/<kind>/mc.py``) and computes the built-in
 ``sensor_stats``. Runs are spread over ``--workers`` processes (default: every core), or over the workers of a
 Dask distributed cluster with ``--scheduler tcp://HOST:PORT`` (needs ``pip install 'fixstream[dask]'``), with a
-progress bar on stderr; the JSON (per-run and aggregate metrics) is identical for any number of workers and
-either way. Exit status: 0 done, 2 bad arguments or scenario, no dask.distributed or no scheduler reachable.
+progress bar on stderr when stderr is a terminal (``--progress``: always); the JSON (per-run and aggregate metrics)
+is identical for any number of workers and either way. ``--out`` is checked before the runs start. Exit status: 0
+done, 2 bad arguments, scenario or ``--out``, no dask.distributed or no scheduler reachable.
 """
 
 from __future__ import annotations
 
 import argparse
+
+from . import progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -25,15 +28,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="run on the Dask distributed cluster of this scheduler (optional extra fixstream[dask])",
     )
     parser.add_argument("--dir", help="scenario directory for names (default $FIXSTREAM_SCENARIOS_DIR or scenarios)")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    progress.add_arguments(parser, "the progress bar")
 
 
 def run(args: argparse.Namespace) -> int:
     import sys
+    from pathlib import Path
 
     from services.player.scenario import ScenarioError, load_scenario, resolve
     from services.player.timeline import SimulationError
     from tools import montecarlo
+
+    from .common import check_output_file
 
     if args.runs < 1 or (args.workers is not None and args.workers < 1):
         print("fixstream mc: --runs and --workers must be >= 1", file=sys.stderr)
@@ -47,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
     if args.scheduler is not None and not montecarlo.dask_available():
         print(f"fixstream mc: {montecarlo.NO_DASK}", file=sys.stderr)
         return 2
+    check_output_file(Path(args.out))  # before the runs, not after them
     try:
         scenario = load_scenario(resolve(args.scenario, args.dir))
         if args.scheduler is not None:
@@ -58,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
             args.runs,
             seed=args.seed,
             workers=args.workers,
-            progress=not args.no_progress,
+            progress=progress.wanted(args.progress),
             scheduler=args.scheduler,
         )
     except (ScenarioError, montecarlo.MonteCarloError, SimulationError) as exc:

@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from . import progress
 from .common import add_zenoh_arguments, key_expr
 
 #: ``--wait-timeout`` of a replay when not given (a scenario uses its file's ``wait_timeout_s``)
@@ -52,13 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--dir", help="scenario directory for names (default $FIXSTREAM_SCENARIOS_DIR or scenarios)")
     parser.add_argument("--linger", type=float, default=0.5, help="seconds to stay connected after the end marker")
-    show = parser.add_mutually_exclusive_group()
-    show.add_argument(
-        "--progress", action="store_true", default=None, help="draw the progress line on stderr even when not a tty"
-    )
-    show.add_argument(
-        "--no-progress", dest="progress", action="store_false", default=None, help="never draw the progress line"
-    )
+    progress.add_arguments(parser)
     rec = parser.add_argument_group("replay of a recording (.mcap)")
     which = rec.add_mutually_exclusive_group()
     which.add_argument(
@@ -105,7 +100,7 @@ def _replay(args: argparse.Namespace) -> int:
     from shared.mcap_io import McapReadError
     from shared.session import open_session
 
-    from . import exit_codes, progress
+    from . import exit_codes
     from .common import zenoh_settings_from
 
     if not Path(args.file).is_file():
@@ -154,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
-    from . import exit_codes, progress
+    from . import exit_codes
 
     if args.rate < 0:
         print("fixstream play: --rate must be >= 0", file=sys.stderr)

@@ -6,12 +6,22 @@ Shown when stderr is a terminal, or when asked (``--progress``), never mixed int
 
 from __future__ import annotations
 
+import argparse
 import logging
 import sys
 import time
 from typing import TextIO
 
 NS_PER_S = 1_000_000_000
+
+
+def add_arguments(parser: argparse.ArgumentParser, what: str = "the progress line") -> None:
+    """``--progress`` / ``--no-progress`` (``args.progress``: True, False or None), for :func:`wanted`."""
+    show = parser.add_mutually_exclusive_group()
+    show.add_argument(
+        "--progress", action="store_true", default=None, help=f"draw {what} on stderr even when it is not a terminal"
+    )
+    show.add_argument("--no-progress", dest="progress", action="store_false", default=None, help=f"never draw {what}")
 
 
 def wanted(flag: bool | None, stream: TextIO | None = None) -> bool:

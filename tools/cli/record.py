@@ -52,20 +52,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     from pydantic import ValidationError
 
     from services.recorder.service import RecorderService
     from services.recorder.settings import RecorderSettings
+    from shared.settings import settings_error_message
 
-    from .common import zenoh_settings_from
+    from . import exit_codes
+    from .common import ensure_dir, zenoh_settings_from
 
     overrides = {name: getattr(args, name) for name in _FIELDS if getattr(args, name, None) is not None}
     try:
         settings = RecorderSettings.load(**overrides)
     except ValidationError as exc:
-        print(f"fixstream record: invalid settings:\n{exc}", file=sys.stderr)
-        return 2
+        print(f"fixstream record: {settings_error_message(exc)}", file=sys.stderr)
+        return exit_codes.USAGE
     assert isinstance(settings, RecorderSettings)
+    ensure_dir(Path(settings.out_dir))  # before connecting: a bad --out-dir is one line and exit code 2
     service = RecorderService(settings, zenoh_settings_from(args))
     service.install_signal_handlers()
     return service.run()

@@ -14,6 +14,8 @@ the same report); else the start marker's name looked up in ``--scenarios-dir``.
 ``fixstream mc`` metrics are computed from what it published (equal to ``fixstream mc`` on the same scenario,
 seed and run).
 
+Progress bars go to stderr when it is a terminal (``--progress``: always, ``--no-progress``: never).
+
 Exit status: 0 written; 2 the recording (or scenario) cannot be used, or several recordings without ``--all`` —
 the message names the file(s) and the problem (a truncated file: ``--allow-truncated`` reports its readable part).
 """
@@ -21,6 +23,8 @@ the message names the file(s) and the problem (a truncated file: ``--allow-trunc
 from __future__ import annotations
 
 import argparse
+
+from . import progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -43,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--allow-truncated", action="store_true", help="report the readable part of a truncated file")
     parser.add_argument("--workers", type=int, help="processes drawing the figures (default: the CPUs, at most 4)")
-    parser.add_argument("--no-progress", action="store_true", help="no progress output")
+    progress.add_arguments(parser, "the progress bars")
     parser.add_argument("--timings", action="store_true", help="print the time of each stage")
 
 
@@ -59,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
             scenario=args.scenario,
             scenarios_dir=args.scenarios_dir,
             allow_truncated=args.allow_truncated,
-            progress=not args.no_progress,
+            progress=progress.wanted(args.progress),
             workers=args.workers,
             merge=args.merge,
         )

@@ -1,4 +1,7 @@
-"""``fixstream status``: ask every service's status queryable (``fixstream/status/**``) and print every answer.
+"""``fixstream status [SELECTOR]``: ask the services' status queryables and print every answer.
+
+SELECTOR is ``SERVICE`` (every instance of it), ``SERVICE/INSTANCE`` (e.g. ``lbl_nav/lbl1``) or a key expression
+under ``fixstream/status/`` (e.g. ``fixstream/status/*/default``); default: every service.
 
 Exit status: 0 when at least one service answered, 3 when none did within ``--timeout``, 2 for a bad selector or
 an unreachable router.
@@ -12,8 +15,30 @@ from typing import Any
 from .common import add_zenoh_arguments, key_expr
 
 
+def selector(text: str) -> str:
+    """argparse ``type=``: ``SERVICE``, ``SERVICE/INSTANCE`` or a key expression (``fixstream/...``) -> the key
+    expression of the status queryables it names."""
+    from shared import keys
+
+    if text == keys.ROOT or text.startswith(keys.ROOT + "/"):
+        return key_expr(text)
+    parts = text.split("/")
+    if len(parts) > 2 or not all(parts):
+        raise argparse.ArgumentTypeError(
+            f"not a status selector: {text!r} (SERVICE, SERVICE/INSTANCE or a key expression fixstream/status/...)"
+        )
+    return key_expr("/".join([keys.STATUS_ALL.removesuffix("/**"), *parts, *(["*"] if len(parts) == 1 else [])]))
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("selector", nargs="?", default="fixstream/status/**", type=key_expr)
+    parser.add_argument(
+        "selector",
+        nargs="?",
+        default="fixstream/status/**",
+        type=selector,
+        help="SERVICE (every instance), SERVICE/INSTANCE (e.g. lbl_nav/lbl1) or a key expression such as"
+        " fixstream/status/*/default (default: every service)",
+    )
     parser.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for replies")
     parser.add_argument("--json", action="store_true", help="print the raw JSON replies, one per line")
     add_zenoh_arguments(parser)
@@ -52,6 +77,6 @@ def run(args: argparse.Namespace) -> int:
         for reason, n in sorted(c.get("rejected_by_reason", {}).items()):
             print(f"    {reason}: {n}")
     if not bodies:
-        print("no service answered")
+        print(f"no service answered on {args.selector}")
         return exit_codes.TIMEOUT
     return exit_codes.OK

@@ -72,9 +72,16 @@ def _write_key(path: Path, key: ec.EllipticCurvePrivateKey) -> None:
     os.chmod(path, 0o600)
 
 
-def make_pki(directory: Path, identities: tuple[str, ...] = IDENTITIES, days: int = 30) -> Pki:
-    """A fresh CA and a certificate for each identity in ``directory`` (created; existing files replaced)."""
+class PkiExists(FileExistsError):
+    """The directory already holds a CA: replacing it would void every certificate it signed."""
+
+
+def make_pki(directory: Path, identities: tuple[str, ...] = IDENTITIES, days: int = 30, force: bool = True) -> Pki:
+    """A fresh CA and a certificate for each identity in ``directory`` (created; existing files replaced). With
+    ``force`` False, a directory that already holds ``ca.pem`` raises :class:`PkiExists` and is left untouched."""
     directory.mkdir(parents=True, exist_ok=True, mode=0o700)
+    if not force and (directory / "ca.pem").exists():
+        raise PkiExists(f"{directory} already holds a CA ({directory / 'ca.pem'})")
     now = dt.datetime.now(dt.UTC) - dt.timedelta(minutes=5)
     until = now + dt.timedelta(days=days)
     ca_key = ec.generate_private_key(ec.SECP256R1())
