@@ -46,7 +46,7 @@ from collections import Counter
 from collections.abc import Iterable
 from typing import Any, ClassVar, Literal, cast
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 from pydantic_settings import SettingsConfigDict
 
 from schemas import BaroAltitude, InsSample, Message, NavReset, RadioAltimeter, ScenarioMarker
@@ -91,6 +91,23 @@ class TerrainNavSettings(ServiceSettings):
         default=2.0, ge=0.0, description="release the buffer after this much wall-clock quiet, s (0: never)"
     )
     core: TerrainNavConfig = Field(default_factory=TerrainNavConfig, description="the estimator's parameters")
+    preset: Literal["paper", "robust"] | None = Field(
+        default=None,
+        description="the estimator's preset, as FIXSTREAM_<ESTIMATOR>_PRESET of the other estimators: the same as"
+        " CORE__PRESET (compose reads FIXSTREAM_TERRAIN_NAV_PRESET for it); both, with different values: an error",
+    )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _preset_shorthand(cls, data: Any) -> Any:
+        """``preset`` goes into the core before it is built, so that it fills what the core was not given."""
+        if not isinstance(data, dict) or data.get("preset") is None:
+            return data
+        core = data.get("core")
+        core = dict(core) if isinstance(core, dict) else {}
+        if core.get("preset") not in (None, data["preset"]):
+            raise ValueError(f"preset {data['preset']!r} and core.preset {core['preset']!r} disagree: give one")
+        return {**data, "core": {**core, "preset": data["preset"]}}
 
     @field_validator("ins_sensor", "radalt_sensor", "baro_sensor", "reset_sensor")
     @classmethod
