@@ -86,6 +86,13 @@ class Tally:
     nees_turn: list[float] = field(default_factory=list)
     vert_in: int = 0
     vert_err_full: list[float] = field(default_factory=list)
+    # evaluations without a fix, by the verdict's state (the first condition that failed: C1 ACQUIRING, C2
+    # NO_FIX_FIT, C3 NO_FIX_AMBIGUOUS, C4 NO_FIX_UNSTABLE), before the run's first fix and in the first 40 s
+    blocked_by: dict[str, int] = field(default_factory=dict)
+    # decisive-and-correct posterior evaluations that were not taken: how many had C2, C3, C4 false
+    missed_c: dict[str, int] = field(default_factory=dict)
+    runs_post_ok_40: int = 0  # runs whose posterior was decisive and correct at an evaluation within 40 s
+    first_fix_s: list[float] = field(default_factory=list)
 
     def row(self) -> dict[str, Any]:
         ub = float(beta.ppf(0.975, self.false + 1, self.fixes - self.false)) if self.fixes > self.false else 1.0
@@ -109,6 +116,11 @@ class Tally:
             "posterior_decisive_correct": self.post_decisive_correct / max(self.post_evals, 1),
             "posterior_decisive_wrong": self.post_decisive_wrong / max(self.post_evals, 1),
             "fix_when_posterior_decisive": self.taken / max(self.post_decisive_correct, 1),
+            "blocked_before_first_fix": dict(self.blocked_by),
+            "missed_decisive_by": {k: v / max(self.post_decisive_correct - self.taken, 1) for k, v in self.missed_c.items()},
+            "runs_posterior_ok_within_40s": self.runs_post_ok_40,
+            "first_fix_s_median": float(np.median(self.first_fix_s)) if self.first_fix_s else None,
+            "first_fix_s_p90": float(np.percentile(self.first_fix_s, 90)) if self.first_fix_s else None,
             "nees_straight": nees(self.nees_straight),
             "nees_turn": nees(self.nees_turn),
             "vertical_within_3sigma": self.vert_in / max(self.fixes, 1),
@@ -167,6 +179,8 @@ def score_run(flight, msgs, cfg: TerrainNavConfig, t: Tally, turn: bool, posteri
     t.runs += 1
     errs = []
     first_fix = None
+    first_post_ok = None
+    horizon = 40.0 * (flight.cell_m / 125.0 if flight.cell_m > 125.0 else 1.0)
     for msg in msgs:
         try:
             out = nav.step(msg)
@@ -195,7 +209,15 @@ def score_run(flight, msgs, cfg: TerrainNavConfig, t: Tally, turn: bool, posteri
                     t.vert_in += 1
                 if m.verdict.n_valid >= m.verdict.n_max:
                     t.vert_err_full.append(abs(m.vertical.mean[dh] - d["dh"]))
-            elif posterior and getattr(m, "c1_enough_data", False) and m.state != "RESET":
+                continue
+            state = getattr(m, "state", None)
+            if (
+                first_fix is None
+                and state in ("ACQUIRING", "NO_FIX_FIT", "NO_FIX_AMBIGUOUS", "NO_FIX_UNSTABLE")
+                and m.header.stamp_ns * 1e-9 - flight.t0_s <= horizon
+            ):
+                t.blocked_by[state] = t.blocked_by.get(state, 0) + 1
+            if posterior and getattr(m, "c1_enough_data", False) and m.state != "RESET":
                 post = exact_posterior(list(nav.window.measq), nav.map, cfg, nav.D1)
                 newest = nav.window.measq[-1]
                 d = flight.truth_at(newest.t)
@@ -207,6 +229,11 @@ def score_run(flight, msgs, cfg: TerrainNavConfig, t: Tally, turn: bool, posteri
                     if max(abs(i - it), abs(j - jt)) <= 1:
                         t.post_decisive_correct += 1
                         t.taken += bool(m.valid)
+                        if first_post_ok is None:
+                            first_post_ok = newest.t
+                        if not m.valid:
+                            for c, ok in (("C2", m.c2_fit), ("C3", m.c3_unique), ("C4", m.c4_stable)):
+                                t.missed_c[c] = t.missed_c.get(c, 0) + (not ok)
                     else:
                         t.post_decisive_wrong += 1
     t.fixes += len(errs)
@@ -215,10 +242,12 @@ def score_run(flight, msgs, cfg: TerrainNavConfig, t: Tally, turn: bool, posteri
     t.runs_false += nf > 0
     t.over_1_5 += sum(e > 1.5 for e in errs)
     t.worst = max([t.worst, *errs])
-    if first_fix is not None and first_fix - flight.t0_s <= 40.0 * (
-        flight.cell_m / 125.0 if flight.cell_m > 125.0 else 1.0
-    ):
+    if first_fix is not None:
+        t.first_fix_s.append(first_fix - flight.t0_s)
+    if first_fix is not None and first_fix - flight.t0_s <= horizon:
         t.available += 1
+    if first_post_ok is not None and first_post_ok - flight.t0_s <= horizon:
+        t.runs_post_ok_40 += 1
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -227,6 +256,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=16)
     ap.add_argument("--family", action="append", help="only families whose name starts with this")
     ap.add_argument("--preset", action="append", help="paper, robust, robust+refine, ... (default: paper and robust)")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        help="override a FlightScenario field of the selected families, KEY=JSON (e.g. rms_inc_m=6, speed_mps=100)",
+    )
     ap.add_argument("--no-posterior", action="store_true", help="skip the exact posterior (5-10x faster)")
     ap.add_argument("--out", default=None, help="JSON file, rewritten after every run (a partial run is kept)")
     a = ap.parse_args(argv)
@@ -237,9 +272,13 @@ def main(argv: list[str] | None = None) -> int:
             with open(a.out, "w") as fh:
                 json.dump(out, fh, indent=1)
 
+    overrides = {k: json.loads(v) for k, v in (kv.split("=", 1) for kv in a.set)}
     for fam in FAMILIES:
         if a.family and not any(fam.name.startswith(f) for f in a.family):
             continue
+        if overrides:
+            sc = FlightScenario.model_validate({**fam.scenario.model_dump(), **overrides})
+            fam = Family(f"{fam.name} {' '.join(a.set)}", sc, fam.world, fam.turn)
         t0 = time.time()
 
         def on_run(tallies: dict[str, Tally], name: str = fam.name) -> None:
@@ -256,6 +295,9 @@ def main(argv: list[str] | None = None) -> int:
                 f"wrong {row['posterior_decisive_wrong']:.3f} taken {row['fix_when_posterior_decisive']:.3f} "
                 f"NEES s {row['nees_straight']} t {row['nees_turn']} vert {row['vertical_within_3sigma']:.3f} "
                 f"full-window median/p95 {row['vertical_full_window_median_m']}/{row['vertical_full_window_p95_m']} "
+                f"blocked {row['blocked_before_first_fix']} missed-by {row['missed_decisive_by']} "
+                f"post-ok<=40s {row['runs_posterior_ok_within_40s']} first fix median/p90 "
+                f"{row['first_fix_s_median']}/{row['first_fix_s_p90']} "
                 f"[{time.time() - t0:.0f}s]",
                 flush=True,
             )
