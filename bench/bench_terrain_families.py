@@ -103,6 +103,8 @@ class Tally:
             a = np.asarray(v)
             return {"n": len(v), "mean": float(a.mean()), "in95": float(np.mean(a <= CHI2_2_95))}
 
+        missed = self.post_decisive_correct - self.taken
+
         return {
             "runs": self.runs,
             "availability": self.available / max(self.runs, 1),
@@ -117,7 +119,7 @@ class Tally:
             "posterior_decisive_wrong": self.post_decisive_wrong / max(self.post_evals, 1),
             "fix_when_posterior_decisive": self.taken / max(self.post_decisive_correct, 1),
             "blocked_before_first_fix": dict(self.blocked_by),
-            "missed_decisive_by": {k: v / max(self.post_decisive_correct - self.taken, 1) for k, v in self.missed_c.items()},
+            "missed_decisive_by": {k: v / max(missed, 1) for k, v in self.missed_c.items()},
             "runs_posterior_ok_within_40s": self.runs_post_ok_40,
             "first_fix_s_median": float(np.median(self.first_fix_s)) if self.first_fix_s else None,
             "first_fix_s_p90": float(np.percentile(self.first_fix_s, 90)) if self.first_fix_s else None,
