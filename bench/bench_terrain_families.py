@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import beta
 
-from schemas.terrain_nav import TerrainFix
+from schemas.terrain_nav import TerrainFix, TerrainVerdict
 from services.terrain_nav.config import TerrainNavConfig
 from services.terrain_nav.core import TerrainNavigator
 from services.terrain_nav.paths import MapWaypoint, waypoint_path
@@ -212,14 +212,16 @@ def score_run(flight, msgs, cfg: TerrainNavConfig, t: Tally, turn: bool, posteri
                 if m.verdict.n_valid >= m.verdict.n_max:
                     t.vert_err_full.append(abs(m.vertical.mean[dh] - d["dh"]))
                 continue
-            state = getattr(m, "state", None)
+            if not isinstance(m, TerrainVerdict):
+                continue
+            state = m.state
             if (
                 first_fix is None
                 and state in ("ACQUIRING", "NO_FIX_FIT", "NO_FIX_AMBIGUOUS", "NO_FIX_UNSTABLE")
                 and m.header.stamp_ns * 1e-9 - flight.t0_s <= horizon
             ):
                 t.blocked_by[state] = t.blocked_by.get(state, 0) + 1
-            if posterior and getattr(m, "c1_enough_data", False) and m.state != "RESET":
+            if posterior and m.c1_enough_data and m.state != "RESET":
                 post = exact_posterior(list(nav.window.measq), nav.map, cfg, nav.D1)
                 newest = nav.window.measq[-1]
                 d = flight.truth_at(newest.t)
