@@ -88,6 +88,18 @@ class TerrainNavConfig(BaseModel):
         "shrink the region below that noise (None: the paper's form) [robust]",
     )
 
+    c3_evidence: float | None = Field(
+        default=None,
+        gt=0.0,
+        description="cap the C3 region's gap F - F_min at 2*c3_evidence*s (s: the window's median S_k or F_min/N, "
+        "the larger): a hypothesis whose likelihood is below exp(-c3_evidence) times the argmin's does not count, "
+        "however close F/F_min is to 1, if it lies farther than c3_evidence_beyond_cells from the argmin (distant "
+        "minima on rough terrain, issue 16; None: the paper's form) [robust]",
+    )
+    c3_evidence_beyond_cells: float = Field(
+        default=4.0, ge=0.0, description="c3_evidence applies to cells farther than this from the argmin, cells"
+    )
+
     # --- vertical Kalman filter (§1.4, §1.7, §2.2) -----------------------------------------------------
     phi31: Literal["exact", "euler"] = Field(default="exact", description="row 3 of Phi: T^2/2 or 0 [R]")
     sigma_v_m: float = Field(default=2.0, gt=0.0, description="radio-altimeter white noise per raw sample, m [D]")
