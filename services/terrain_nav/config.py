@@ -18,13 +18,15 @@ PRESETS: dict[str, dict[str, Any]] = {
     # the paper's algorithm with the corrections of docs/terrain_nav.md: C3's near-minimum region floored at the
     # residual level the model expects ("False fixes on coarse and partly flat maps"), the slope term of the
     # vertical channel ("The vertical channel over smooth terrain") and the sub-cell refinement of §2.6 with a
-    # sigma floor of 0.3 cell (one-cell slips on low relief and coarse maps, "Terrain families")
+    # sigma floor of 0.3 cell (one-cell slips on low relief and coarse maps, "Terrain families"); C3 ignores distant
+    # minima the window's likelihood excludes by exp(-15) ("Rough terrain: availability", issue 16)
     "robust": {
         "c3_floor": 0.5,
         "vertical_slope_term": True,
         "refine": True,
         "refine_sigma_floor_cells": 0.3,
         "refine_vertical": True,
+        "c3_evidence": 15.0,
     },
 }
 
