@@ -10,12 +10,17 @@
   fix ("taken");
 * horizontal NEES of the fixes (e^T Cov^-1 e, 2 dof; mean and share within the chi2(2) 95 % bound 5.99),
   split into fixes on straight legs and fixes whose window holds a turn;
-* the vertical channel: share of fixes with |dh error| <= 3 sqrt(P_hh) (AT-15).
+* the vertical channel: share of fixes with |dh error| <= 3 sqrt(P_hh) (AT-15);
+* what blocked: the verdicts before a run's first fix within 40 s by state (C1 ACQUIRING, C2 NO_FIX_FIT, C3
+  NO_FIX_AMBIGUOUS, C4 NO_FIX_UNSTABLE: the first condition that failed), and at the decisive-and-correct
+  evaluations not taken, the share with C2, C3, C4 false; first-fix times. ``--set KEY=JSON`` overrides a
+  FlightScenario field of the selected families (the sweep of issue 16).
 
-Families: Hurst exponent (roughness), von Karman correlation length, relief (RMS adjacent-cell change),
+Families: Hurst exponent (roughness), rough terrain (H 0.35) with a 10-cell correlation length, 6 m relief or a
+120 m/s flight (issue 16), von Karman correlation length, relief (RMS adjacent-cell change),
 a low-relief map, a coarse partly flat map (2.4 km cells, mountains on one side and a plain on the other)
-and a turning flight (waypoints). Presets: ``paper`` (the digest's §6) and ``robust`` (C3 floor, slope term, refinement,
-δh from the refinement's replay); a
+and a turning flight (waypoints). Presets: ``paper`` (the digest's §6) and ``robust`` (C3 floor, C3 evidence cap,
+slope term, refinement, δh from the refinement's replay); a
 preset may carry options after ``+``: ``robust+refine`` (``refine: true``), ``robust+mu2=0.5`` (JSON values).
 """
 
@@ -55,6 +60,11 @@ class Family:
 
 FAMILIES = [
     Family("H 0.35 (rough)", FlightScenario(H=0.35)),
+    # issue 16's rough-terrain availability (docs/terrain_nav.md, "Rough terrain: availability"): the sweep's points
+    # where the paper's C3 withholds fixes the exact posterior already calls
+    Family("rough, corr 10 cells", FlightScenario(H=0.35, corr_cells=10.0)),
+    Family("rough, relief 6 m", FlightScenario(H=0.35, rms_inc_m=6.0)),
+    Family("rough, 120 m/s", FlightScenario(H=0.35, speed_mps=120.0)),
     Family("H 0.6 (digest)", FlightScenario(H=0.6)),
     Family("H 0.85 (smooth)", FlightScenario(H=0.85)),
     Family("corr 10 cells", FlightScenario(corr_cells=10.0)),
