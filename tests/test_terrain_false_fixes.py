@@ -52,9 +52,7 @@ def test_the_paper_preset_is_the_digest_configuration_and_robust_the_default() -
     assert robust.vertical_slope_term and not TerrainNavConfig(preset="paper").vertical_slope_term
     assert robust.refine and robust.refine_sigma_floor_cells == 0.3 and not TerrainNavConfig(preset="paper").refine
     assert robust.refine_vertical and not TerrainNavConfig(preset="paper").refine_vertical
-    assert robust.c3_evidence == 15.0 and TerrainNavConfig(preset="paper").c3_evidence is None
     robust_only = {"preset", "c3_floor", "vertical_slope_term", "refine", "refine_sigma_floor_cells", "refine_vertical"}
-    robust_only.add("c3_evidence")
     assert robust.model_dump(exclude=robust_only) == TerrainNavConfig(preset="paper").model_dump(exclude=robust_only)
 
 
