@@ -17,7 +17,7 @@
   FlightScenario field of the selected families (the sweep of issue 16).
 
 Families: Hurst exponent (roughness), rough terrain (H 0.35) with a 10-cell correlation length, 6 m relief or a
-120 m/s flight (issue 16), von Karman correlation length, relief (RMS adjacent-cell change),
+130 m/s flight (issue 16), von Karman correlation length, relief (RMS adjacent-cell change),
 a low-relief map, a coarse partly flat map (2.4 km cells, mountains on one side and a plain on the other)
 and a turning flight (waypoints). Presets: ``paper`` (the digest's §6) and ``robust`` (C3 floor, C3 evidence cap,
 slope term, refinement, δh from the refinement's replay); a
@@ -64,7 +64,7 @@ FAMILIES = [
     # where the paper's C3 withholds fixes the exact posterior already calls
     Family("rough, corr 10 cells", FlightScenario(H=0.35, corr_cells=10.0)),
     Family("rough, relief 6 m", FlightScenario(H=0.35, rms_inc_m=6.0)),
-    Family("rough, 120 m/s", FlightScenario(H=0.35, speed_mps=120.0)),
+    Family("rough, 130 m/s", FlightScenario(H=0.35, speed_mps=130.0)),
     Family("H 0.6 (digest)", FlightScenario(H=0.6)),
     Family("H 0.85 (smooth)", FlightScenario(H=0.85)),
     Family("corr 10 cells", FlightScenario(corr_cells=10.0)),
