@@ -10,12 +10,17 @@
   fix ("taken");
 * horizontal NEES of the fixes (e^T Cov^-1 e, 2 dof; mean and share within the chi2(2) 95 % bound 5.99),
   split into fixes on straight legs and fixes whose window holds a turn;
-* the vertical channel: share of fixes with |dh error| <= 3 sqrt(P_hh) (AT-15).
+* the vertical channel: share of fixes with |dh error| <= 3 sqrt(P_hh) (AT-15);
+* what blocked: the verdicts before a run's first fix within 40 s by state (C1 ACQUIRING, C2 NO_FIX_FIT, C3
+  NO_FIX_AMBIGUOUS, C4 NO_FIX_UNSTABLE: the first condition that failed), and at the decisive-and-correct
+  evaluations not taken, the share with C2, C3, C4 false; first-fix times. ``--set KEY=JSON`` overrides a
+  FlightScenario field of the selected families (the sweep of issue 16).
 
-Families: Hurst exponent (roughness), von Karman correlation length, relief (RMS adjacent-cell change),
+Families: Hurst exponent (roughness), rough terrain (H 0.35) with a 10-cell correlation length, 6 m relief or a
+130 m/s flight (issue 16), von Karman correlation length, relief (RMS adjacent-cell change),
 a low-relief map, a coarse partly flat map (2.4 km cells, mountains on one side and a plain on the other)
-and a turning flight (waypoints). Presets: ``paper`` (the digest's §6) and ``robust`` (C3 floor, slope term, refinement,
-δh from the refinement's replay); a
+and a turning flight (waypoints). Presets: ``paper`` (the digest's §6) and ``robust`` (C3 floor, C3 evidence cap,
+slope term, refinement, δh from the refinement's replay); a
 preset may carry options after ``+``: ``robust+refine`` (``refine: true``), ``robust+mu2=0.5`` (JSON values).
 """
 
@@ -33,7 +38,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import beta
 
-from schemas.terrain_nav import TerrainFix
+from schemas.terrain_nav import TerrainFix, TerrainVerdict
 from services.terrain_nav.config import TerrainNavConfig
 from services.terrain_nav.core import TerrainNavigator
 from services.terrain_nav.paths import MapWaypoint, waypoint_path
@@ -55,6 +60,11 @@ class Family:
 
 FAMILIES = [
     Family("H 0.35 (rough)", FlightScenario(H=0.35)),
+    # issue 16's rough-terrain availability (docs/terrain_nav.md, "Rough terrain: availability"): the sweep's points
+    # where the paper's C3 withholds fixes the exact posterior already calls
+    Family("rough, corr 10 cells", FlightScenario(H=0.35, corr_cells=10.0)),
+    Family("rough, relief 6 m", FlightScenario(H=0.35, rms_inc_m=6.0)),
+    Family("rough, 130 m/s", FlightScenario(H=0.35, speed_mps=130.0)),
     Family("H 0.6 (digest)", FlightScenario(H=0.6)),
     Family("H 0.85 (smooth)", FlightScenario(H=0.85)),
     Family("corr 10 cells", FlightScenario(corr_cells=10.0)),
@@ -86,6 +96,13 @@ class Tally:
     nees_turn: list[float] = field(default_factory=list)
     vert_in: int = 0
     vert_err_full: list[float] = field(default_factory=list)
+    # evaluations without a fix, by the verdict's state (the first condition that failed: C1 ACQUIRING, C2
+    # NO_FIX_FIT, C3 NO_FIX_AMBIGUOUS, C4 NO_FIX_UNSTABLE), before the run's first fix and in the first 40 s
+    blocked_by: dict[str, int] = field(default_factory=dict)
+    # decisive-and-correct posterior evaluations that were not taken: how many had C2, C3, C4 false
+    missed_c: dict[str, int] = field(default_factory=dict)
+    runs_post_ok_40: int = 0  # runs whose posterior was decisive and correct at an evaluation within 40 s
+    first_fix_s: list[float] = field(default_factory=list)
 
     def row(self) -> dict[str, Any]:
         ub = float(beta.ppf(0.975, self.false + 1, self.fixes - self.false)) if self.fixes > self.false else 1.0
@@ -95,6 +112,8 @@ class Tally:
                 return {"n": 0}
             a = np.asarray(v)
             return {"n": len(v), "mean": float(a.mean()), "in95": float(np.mean(a <= CHI2_2_95))}
+
+        missed = self.post_decisive_correct - self.taken
 
         return {
             "runs": self.runs,
@@ -109,6 +128,11 @@ class Tally:
             "posterior_decisive_correct": self.post_decisive_correct / max(self.post_evals, 1),
             "posterior_decisive_wrong": self.post_decisive_wrong / max(self.post_evals, 1),
             "fix_when_posterior_decisive": self.taken / max(self.post_decisive_correct, 1),
+            "blocked_before_first_fix": dict(self.blocked_by),
+            "missed_decisive_by": {k: v / max(missed, 1) for k, v in self.missed_c.items()},
+            "runs_posterior_ok_within_40s": self.runs_post_ok_40,
+            "first_fix_s_median": float(np.median(self.first_fix_s)) if self.first_fix_s else None,
+            "first_fix_s_p90": float(np.percentile(self.first_fix_s, 90)) if self.first_fix_s else None,
             "nees_straight": nees(self.nees_straight),
             "nees_turn": nees(self.nees_turn),
             "vertical_within_3sigma": self.vert_in / max(self.fixes, 1),
@@ -167,6 +191,8 @@ def score_run(flight, msgs, cfg: TerrainNavConfig, t: Tally, turn: bool, posteri
     t.runs += 1
     errs = []
     first_fix = None
+    first_post_ok = None
+    horizon = 40.0 * (flight.cell_m / 125.0 if flight.cell_m > 125.0 else 1.0)
     for msg in msgs:
         try:
             out = nav.step(msg)
@@ -195,7 +221,17 @@ def score_run(flight, msgs, cfg: TerrainNavConfig, t: Tally, turn: bool, posteri
                     t.vert_in += 1
                 if m.verdict.n_valid >= m.verdict.n_max:
                     t.vert_err_full.append(abs(m.vertical.mean[dh] - d["dh"]))
-            elif posterior and getattr(m, "c1_enough_data", False) and m.state != "RESET":
+                continue
+            if not isinstance(m, TerrainVerdict):
+                continue
+            state = m.state
+            if (
+                first_fix is None
+                and state in ("ACQUIRING", "NO_FIX_FIT", "NO_FIX_AMBIGUOUS", "NO_FIX_UNSTABLE")
+                and m.header.stamp_ns * 1e-9 - flight.t0_s <= horizon
+            ):
+                t.blocked_by[state] = t.blocked_by.get(state, 0) + 1
+            if posterior and m.c1_enough_data and m.state != "RESET":
                 post = exact_posterior(list(nav.window.measq), nav.map, cfg, nav.D1)
                 newest = nav.window.measq[-1]
                 d = flight.truth_at(newest.t)
@@ -207,6 +243,11 @@ def score_run(flight, msgs, cfg: TerrainNavConfig, t: Tally, turn: bool, posteri
                     if max(abs(i - it), abs(j - jt)) <= 1:
                         t.post_decisive_correct += 1
                         t.taken += bool(m.valid)
+                        if first_post_ok is None:
+                            first_post_ok = newest.t
+                        if not m.valid:
+                            for c, ok in (("C2", m.c2_fit), ("C3", m.c3_unique), ("C4", m.c4_stable)):
+                                t.missed_c[c] = t.missed_c.get(c, 0) + (not ok)
                     else:
                         t.post_decisive_wrong += 1
     t.fixes += len(errs)
@@ -215,10 +256,12 @@ def score_run(flight, msgs, cfg: TerrainNavConfig, t: Tally, turn: bool, posteri
     t.runs_false += nf > 0
     t.over_1_5 += sum(e > 1.5 for e in errs)
     t.worst = max([t.worst, *errs])
-    if first_fix is not None and first_fix - flight.t0_s <= 40.0 * (
-        flight.cell_m / 125.0 if flight.cell_m > 125.0 else 1.0
-    ):
+    if first_fix is not None:
+        t.first_fix_s.append(first_fix - flight.t0_s)
+    if first_fix is not None and first_fix - flight.t0_s <= horizon:
         t.available += 1
+    if first_post_ok is not None and first_post_ok - flight.t0_s <= horizon:
+        t.runs_post_ok_40 += 1
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -227,6 +270,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=16)
     ap.add_argument("--family", action="append", help="only families whose name starts with this")
     ap.add_argument("--preset", action="append", help="paper, robust, robust+refine, ... (default: paper and robust)")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        help="override a FlightScenario field of the selected families, KEY=JSON (e.g. rms_inc_m=6, speed_mps=100)",
+    )
     ap.add_argument("--no-posterior", action="store_true", help="skip the exact posterior (5-10x faster)")
     ap.add_argument("--out", default=None, help="JSON file, rewritten after every run (a partial run is kept)")
     a = ap.parse_args(argv)
@@ -237,9 +286,13 @@ def main(argv: list[str] | None = None) -> int:
             with open(a.out, "w") as fh:
                 json.dump(out, fh, indent=1)
 
+    overrides = {k: json.loads(v) for k, v in (kv.split("=", 1) for kv in a.set)}
     for fam in FAMILIES:
         if a.family and not any(fam.name.startswith(f) for f in a.family):
             continue
+        if overrides:
+            sc = FlightScenario.model_validate({**fam.scenario.model_dump(), **overrides})
+            fam = Family(f"{fam.name} {' '.join(a.set)}", sc, fam.world, fam.turn)
         t0 = time.time()
 
         def on_run(tallies: dict[str, Tally], name: str = fam.name) -> None:
@@ -256,6 +309,9 @@ def main(argv: list[str] | None = None) -> int:
                 f"wrong {row['posterior_decisive_wrong']:.3f} taken {row['fix_when_posterior_decisive']:.3f} "
                 f"NEES s {row['nees_straight']} t {row['nees_turn']} vert {row['vertical_within_3sigma']:.3f} "
                 f"full-window median/p95 {row['vertical_full_window_median_m']}/{row['vertical_full_window_p95_m']} "
+                f"blocked {row['blocked_before_first_fix']} missed-by {row['missed_decisive_by']} "
+                f"post-ok<=40s {row['runs_posterior_ok_within_40s']} first fix median/p90 "
+                f"{row['first_fix_s_median']}/{row['first_fix_s_p90']} "
                 f"[{time.time() - t0:.0f}s]",
                 flush=True,
             )

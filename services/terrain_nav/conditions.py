@@ -35,12 +35,24 @@ def c2_fit(F_min: float, n_valid: int, mu_F: float, L_zk: float) -> bool:
     return n_valid > 0 and F_min / n_valid < mu_F * L_zk
 
 
-def d_max(F: F64, a: int, b: int, mu3: float, F_min: float | None = None, floor: float | None = None) -> float:
+def d_max(
+    F: F64,
+    a: int,
+    b: int,
+    mu3: float,
+    F_min: float | None = None,
+    floor: float | None = None,
+    gap_cap: float | None = None,
+    cap_beyond: float = 0.0,
+) -> float:
     """D_max: largest Euclidean distance (cells) from (a, b) to any cell with F <= F_min*(1+mu3).
 
     With ``floor`` (the sum of the window's expected e^2 at the true hypothesis, m^2) the region is
     F <= F_min + mu3*max(F_min, floor): a minimum that fits better than the noise the model expects cannot
-    shrink the region below the noise scale (docs/terrain_nav.md, false fixes on coarse maps).
+    shrink the region below the noise scale (docs/terrain_nav.md, false fixes on coarse maps). With ``gap_cap``
+    (m^2) a cell farther than ``cap_beyond`` cells (Euclidean) from (a, b) qualifies only if also
+    F - F_min <= ``gap_cap`` (the evidence bound of ``c3_evidence``: distant minima); nearer cells keep the region
+    above.
     """
     fmin = float(F[a, b]) if F_min is None else F_min
     bound = fmin * (1.0 + mu3) if floor is None else fmin + mu3 * max(fmin, floor)
@@ -48,7 +60,20 @@ def d_max(F: F64, a: int, b: int, mu3: float, F_min: float | None = None, floor:
     if ii.size == 0:
         return 0.0
     d2 = (ii - a) ** 2 + (jj - b) ** 2
+    if gap_cap is not None:
+        keep = (d2 <= cap_beyond**2) | (fmin + gap_cap >= F[ii, jj])
+        d2 = d2[keep]  # the argmin itself is always kept
     return float(np.sqrt(d2.max()))
+
+
+def evidence_gap(tau: float, s_expected: list[float], F_min: float, n_valid: int) -> float:
+    """The gap 2*tau*s of ``c3_evidence``: hypotheses whose F exceeds F_min by more have a likelihood below
+    exp(-tau) times the argmin's, with s = max(median of the window's S_k, F_min/N_valid) the noise per
+    measurement (the median ignores the start's S_k of the unknown dh; F_min/N_valid covers noise above the model's).
+    """
+    pos = [v for v in s_expected if v > 0.0]
+    s = max(float(np.median(pos)) if pos else 0.0, F_min / n_valid if n_valid > 0 else 0.0)
+    return 2.0 * tau * s
 
 
 def phi_of(n_valid: int, N_min: int, N_max: int, kind: str = "n_over_nmax") -> float:

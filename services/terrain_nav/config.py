@@ -18,7 +18,8 @@ PRESETS: dict[str, dict[str, Any]] = {
     # the paper's algorithm with the corrections of docs/terrain_nav.md: C3's near-minimum region floored at the
     # residual level the model expects ("False fixes on coarse and partly flat maps"), the slope term of the
     # vertical channel ("The vertical channel over smooth terrain") and the sub-cell refinement of §2.6 with a
-    # sigma floor of 0.3 cell (one-cell slips on low relief and coarse maps, "Terrain families")
+    # sigma floor of 0.3 cell (one-cell slips on low relief and coarse maps, "Terrain families"); not c3_evidence,
+    # which gives false fixes on the coarse partly flat map ("Rough terrain: availability", issue 16)
     "robust": {
         "c3_floor": 0.5,
         "vertical_slope_term": True,
@@ -86,6 +87,19 @@ class TerrainNavConfig(BaseModel):
         description="C3 region F <= F_min + mu3*max(F_min, c3_floor * sum of the window's expected e^2 S_k) "
         "instead of F <= F_min*(1+mu3): a minimum that fits far better than the noise the model expects cannot "
         "shrink the region below that noise (None: the paper's form) [robust]",
+    )
+
+    c3_evidence: float | None = Field(
+        default=None,
+        gt=0.0,
+        description="cap the C3 region's gap F - F_min at 2*c3_evidence*s (s: the window's median S_k or F_min/N, "
+        "the larger): a hypothesis whose likelihood is below exp(-c3_evidence) times the argmin's does not count, "
+        "however close F/F_min is to 1, if it lies farther than c3_evidence_beyond_cells from the argmin (distant "
+        "minima on rough terrain, issue 16; None: the paper's form; not in robust: false fixes on the coarse partly "
+        "flat map) [D]",
+    )
+    c3_evidence_beyond_cells: float = Field(
+        default=4.0, ge=0.0, description="c3_evidence applies to cells farther than this from the argmin, cells"
     )
 
     # --- vertical Kalman filter (§1.4, §1.7, §2.2) -----------------------------------------------------

@@ -174,11 +174,17 @@ class ModifiedSearch:
             hist.popleft()
         c1 = cond.c1_enough_data(n_valid, self.N_min, cfg.c1_strict)
         c2 = cond.c2_fit(F_min, n_valid, cfg.mu_F, self.L_zk)
+        beyond = cfg.c3_evidence_beyond_cells
+        cap = (
+            None
+            if cfg.c3_evidence is None
+            else cond.evidence_gap(cfg.c3_evidence, [m.s_expected for m in self.window.measq], F_min, n_valid)
+        )
         if cfg.c3_floor is not None:
             expected = cfg.c3_floor * sum(m.s_expected for m in self.window.measq)
-            D = cond.d_max(F, a, b, cfg.mu3, F_min, floor=expected)
+            D = cond.d_max(F, a, b, cfg.mu3, F_min, floor=expected, gap_cap=cap, cap_beyond=beyond)
         else:
-            D = cond.d_max(F, a, b, cfg.mu3, F_min)
+            D = cond.d_max(F, a, b, cfg.mu3, F_min, gap_cap=cap, cap_beyond=beyond)
         D_thr = cond.d_threshold(n_valid, self.N_min, self.N_max, cfg.mu1, cfg.mu2, cfg.phi)
         c3 = cond.c3_unique(D, D_thr)
         R = cond.r_min(hist, self.total_meas, cfg.N_R)
