@@ -150,12 +150,12 @@ class RecorderService(Service):
         """Finalise the current file (summary, footer, fsync)."""
         try:
             path = self.writer.finish()
+            if path is not None:
+                log.info("%s: finalised %s", self.source, path)
         except OSError as exc:
             self._write_failed(self.config.key_expr, exc)
-            return
-        if path is not None:
-            log.info("%s: finalised %s", self.source, path)
-        self._list_files()
+        finally:
+            self._list_files()
 
     def _list_files(self) -> None:
         """Every file this recorder wrote, one path a line, in ``files_list`` (what ``fixstream up`` reports)."""
@@ -266,18 +266,29 @@ class RecorderService(Service):
                     self._marker(msg)
 
     def _close(self, subs: list[Any], declared: list[Any]) -> None:
-        """Stop the inflow, record what already arrived (at most a FIFO's worth), finalise, close the session."""
+        """Stop the inflow, record what already arrived (at most a FIFO's worth) and the recorder's final diagnostics,
+        finalise, close the session."""
+        own_key = keys.diag(self.name, self.instance)
+        own: Any = None
+        if self.session is not None and zenoh.KeyExpr(self.config.key_expr).intersects(zenoh.KeyExpr(own_key)):
+            # only the recorder's own diagnostics still come in: its final counts (published below) are recorded
+            with contextlib.suppress(Exception):
+                own = self.session.declare_subscriber(own_key, self._enqueue)
+        for s in subs:
+            with contextlib.suppress(Exception):
+                s.undeclare()
         try:
-            while self._take(_BATCH):
-                pass
-            self._report_drops()
-            self._housekeeping(final=True)
-            self._record_own_diagnostics()
-        finally:
-            for s in subs:
-                with contextlib.suppress(Exception):
-                    s.undeclare()
-        try:
+            try:
+                while self._take(_BATCH):
+                    pass
+                self._report_drops()
+                self._housekeeping(final=True)
+                if own is not None:
+                    self._record_own_diagnostics(own_key)
+            finally:
+                if own is not None:
+                    with contextlib.suppress(Exception):
+                        own.undeclare()
             while self._take(_BATCH):
                 pass
             self.on_stop()
@@ -294,12 +305,9 @@ class RecorderService(Service):
                         session.close()
             log.info("%s: stopped", self.source)
 
-    def _record_own_diagnostics(self, timeout_s: float = 2.0) -> None:
-        """Wait (bounded) until the diagnostics this recorder published came back through its own subscription and
-        are written: its final counts are in the recording (they are published once the data has been drained)."""
-        key = keys.diag(self.name, self.instance)
-        if not zenoh.KeyExpr(self.config.key_expr).intersects(zenoh.KeyExpr(key)):
-            return
+    def _record_own_diagnostics(self, key: str, timeout_s: float = 2.0) -> None:
+        """Wait (bounded) until the diagnostics this recorder published on ``key`` came back through its own
+        subscription and are written."""
         published = self._seq.get(key, 0)
         deadline = time.monotonic() + timeout_s
         while self._next_seq.get((key, self.source), 0) < published and time.monotonic() < deadline:
