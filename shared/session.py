@@ -83,17 +83,19 @@ def _insert_tls(cfg: zenoh.Config, settings: ZenohSettings) -> None:
         cfg.insert_json5(f"transport/link/tls/{name}", json.dumps(value))
 
 
-def open_session(settings: ZenohSettings | None = None) -> zenoh.Session:
+def open_session(settings: ZenohSettings | None = None, *, take_signals: bool = True) -> zenoh.Session:
     """An open session, or :class:`ConnectError` (one line, the endpoints and the variable that sets them).
 
     ``zenoh.open`` blocks in Rust for up to the connect timeout (forever at -1), where Python runs no signal
     handler: it runs on a daemon thread while the calling thread waits in short slices. Called from the main
     thread, SIGINT and SIGTERM during that wait stop the process at once: SIGINT raises ``KeyboardInterrupt`` (exit
-    130), SIGTERM ``SystemExit(143)`` (128 + the signal); the handlers in place before are restored either way."""
+    130), SIGTERM ``SystemExit(143)`` (128 + the signal); the handlers in place before are restored either way.
+    ``take_signals=False`` leaves the caller's handlers in place (they run between the slices): for a caller that
+    must stop in its own way, e.g. the stack runner, which stops its processes first."""
     settings = settings or ZenohSettings()
     cfg = zenoh_config(settings)
     try:
-        return _open_interruptible(cfg)
+        return _open_interruptible(cfg, take_signals)
     except zenoh.ZError as exc:
         where = ", ".join(settings.connect or settings.listen) or "(no endpoint)"
         if settings.mode == "router" or not settings.connect:
@@ -109,7 +111,7 @@ def open_session(settings: ZenohSettings | None = None) -> zenoh.Session:
 _OPEN_SLICE_S = 0.05
 
 
-def _open_interruptible(cfg: zenoh.Config) -> zenoh.Session:
+def _open_interruptible(cfg: zenoh.Config, take_signals: bool) -> zenoh.Session:
     """``zenoh.open(cfg)`` on a daemon thread; see :func:`open_session` for the signals."""
     outcome: list[Any] = []
     abandoned = threading.Event()
@@ -129,7 +131,7 @@ def _open_interruptible(cfg: zenoh.Config) -> zenoh.Session:
     thread = threading.Thread(target=opener, name="zenoh-open", daemon=True)
     received: list[int] = []
     previous: dict[int, Any] = {}
-    if threading.current_thread() is threading.main_thread():
+    if take_signals and threading.current_thread() is threading.main_thread():
 
         def on_signal(signum: int, _frame: FrameType | None) -> None:
             received.append(signum)

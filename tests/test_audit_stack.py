@@ -20,6 +20,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -348,3 +349,21 @@ def test_threads_left_by_an_interrupted_open_are_daemons() -> None:
     done = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=30)
     assert done.returncode == 143, done.stderr
     assert time.monotonic() - t0 < 10
+
+
+def test_a_caller_that_keeps_its_signal_handlers_sees_them_run_during_the_open() -> None:
+    """The stack runner's own handler (stop the processes first) runs while the open waits, and the open goes on."""
+    seen: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, _frame: seen.append(signum))
+    try:
+        timer = threading.Timer(0.3, lambda: os.kill(os.getpid(), signal.SIGINT))
+        timer.start()
+        t0 = time.monotonic()
+        with pytest.raises(ConnectError, match="no Zenoh router reachable"):
+            settings = ZenohSettings(mode="client", connect=["tcp/127.0.0.1:1"], connect_timeout_s=1.5)
+            open_session(settings, take_signals=False)
+        timer.join()
+        assert seen == [signal.SIGINT]
+        assert time.monotonic() - t0 >= 1.4  # the open was not cut short
+    finally:
+        signal.signal(signal.SIGINT, previous)
