@@ -32,7 +32,8 @@ that; everything older is in complete chunks on disk (status ``durable``).
 
 **Self-describing files.** Metadata records ``fixstream.recorder`` (version, configuration, what the time fields
 mean), ``fixstream.run`` (scenario, seed, run index, player, origin; from the player's start marker) and
-``fixstream.services`` (every service's configuration from its status queryable, asked at the start marker); the
+``fixstream.services`` (every service's configuration from its status queryable, asked at the start marker until
+every live service answered, and how many did); the
 scenario YAML and its maps as attachments, looked up only inside the scenario directory
 (:mod:`services.recorder.run_context`).
 
@@ -40,7 +41,8 @@ scenario YAML and its maps as attachments, looked up only inside the scenario di
 per ``diag_interval_s`` (with the counts), whatever the flood.
 
 Status (``fixstream/status/recorder/<instance>``) adds ``written``, ``rejected_recorded``, ``durable``, ``lost``,
-``seq_gaps``, ``seq_jumps``, ``seq_resets``, ``write_errors``, ``files_written``, ``recent_files``,
+``seq_gaps``, ``seq_jumps``, ``seq_resets``, ``write_errors``, ``write_failing``, ``last_write_error``,
+``unwritten`` (a write error pauses writing for 1-30 s; the recorder then exits 1), ``files_written``, ``recent_files``,
 ``current_file``, ``fifo`` (capacity, the largest backlog drained at once) and ``runs`` to the base's.
 """
 
