@@ -37,12 +37,13 @@ from schemas import Depth, Diagnostic
 from services.recorder.run_context import ANSWERED_KEY, services_metadata
 from services.recorder.service import RecorderService, collect_statuses
 from services.recorder.settings import RecorderSettings
-from shared import codec, keys
+from shared import codec, keys, local_stack
 from shared.errors import ConnectError
 from shared.mcap_io import recording_files
 from shared.session import open_session, port_free
 from shared.settings import ZenohSettings
 from tools.stack import ComposeError, load_compose, plan_stack
+from tools.stack.plan import DEFAULT_ROUTER_PORT
 
 UNWRITABLE = Path("/sys/kernel")  # a directory nobody, root included, can create files in
 
@@ -116,6 +117,21 @@ def test_a_busy_router_port_asked_for_is_an_error_not_a_fallback(tmp_path: Path)
         with pytest.raises(ComposeError, match=f"FIXSTREAM_ROUTER_PORT {busy}: the port is in use"):
             plan_stack(by_variable, ["router"], create_dirs=False)
         assert plan_stack(project, ["router"], create_dirs=False, router_port=0).endpoint != f"tcp/127.0.0.1:{busy}"
+
+
+def test_the_default_port_of_a_stack_announced_but_not_listening_yet_is_left_to_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Two stacks started at once: the first has announced 7447 and is starting its router; the second must not
+    plan the same port (its router would fail to bind, and its readiness probe would see the other's router)."""
+    monkeypatch.setenv("FIXSTREAM_STATE_DIR", str(tmp_path / "state"))
+    (tmp_path / "compose.yaml").write_text(ROUTER_ONLY)
+    project = load_compose(tmp_path / "compose.yaml", environ={})
+    announcement = local_stack.announce(f"tcp/127.0.0.1:{DEFAULT_ROUTER_PORT}", "other/compose.yaml")
+    try:
+        assert plan_stack(project, ["router"], create_dirs=False).endpoint != f"tcp/127.0.0.1:{DEFAULT_ROUTER_PORT}"
+    finally:
+        local_stack.withdraw(announcement)
 
 
 @pytest.mark.parametrize(

@@ -25,6 +25,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from shared import local_stack
 from shared.session import free_tcp_port, port_free
 
 from .compose import ALIVE_LABEL, ComposeError, ComposeProject, ServiceSpec, Volume
@@ -205,7 +206,9 @@ def _router_port(project: ComposeProject, requested: int | None) -> int:
             raise ComposeError(f"${ROUTER_PORT_VAR}={text!r} is not a port number (1-65535)")
         port, source = int(text), f"${ROUTER_PORT_VAR}"
     else:
-        return DEFAULT_ROUTER_PORT if port_free(DEFAULT_ROUTER_PORT) else free_tcp_port()
+        # also skip the port of a stack announced but whose router is not listening yet (two stacks started at once)
+        claimed = any(s.endpoint.endswith(f":{DEFAULT_ROUTER_PORT}") for s in local_stack.running_stacks())
+        return DEFAULT_ROUTER_PORT if not claimed and port_free(DEFAULT_ROUTER_PORT) else free_tcp_port()
     if not 0 <= port <= 65535:
         raise ComposeError(f"{source} {port} is not a port number (1-65535; 0: any free port)")
     if port == 0:
