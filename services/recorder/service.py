@@ -55,7 +55,7 @@ import queue
 import threading
 import time
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, ClassVar, cast
 
@@ -135,6 +135,8 @@ class RecorderService(Service):
         #: services whose status answered the last start marker's query (their configuration is in the file)
         self.services_seen = 0
         self._control: zenoh.Session | None = None
+        #: the liveliness tokens alive now (what a start marker's status query waits for)
+        self.alive = AliveTokens()
         #: the Foxglove scene and map channels (FIXSTREAM_RECORDER_FOXGLOVE), converted from what is written
         self.foxglove: FoxgloveChannels | None = None
         if settings.foxglove:
@@ -214,6 +216,8 @@ class RecorderService(Service):
             self._control = control = open_session(self.zenoh_settings)
             declared.append(control.declare_queryable(keys.status(self.name, self.instance), self._answer_status))
             declared.append(control.liveliness().declare_token(keys.alive(self.name, self.instance)))
+            # which services are alive, known before any start marker asks them for their configuration
+            declared.append(self.alive.watch(control))
             log.info("%s: up, recording %s to %s", self.source, self.config.key_expr, self.writer.out_dir)
             self._serve(subs)
         finally:
@@ -293,6 +297,7 @@ class RecorderService(Service):
                         own.undeclare()
             while self._take(_BATCH):
                 pass
+            self._await_services()
             self.on_stop()
         finally:
             for d in reversed(declared):
@@ -306,6 +311,20 @@ class RecorderService(Service):
                     with contextlib.suppress(Exception):
                         session.close()
             log.info("%s: stopped", self.source)
+
+    def _await_services(self) -> None:
+        """A status query still in flight (a start marker just before the stop): its answers go into the file."""
+        thread = self._status_thread
+        if thread is not None and thread.is_alive():
+            thread.join(timeout=_STATUS_ATTEMPTS * 2 * self.config.status_timeout_s)
+        self._write_services()
+
+    def _write_services(self) -> None:
+        """The services' configuration, once the start marker's status query has its answers."""
+        if self._status_replies is not None:
+            (replies, alive), self._status_replies = self._status_replies, None
+            self.services_seen = len(replies)
+            self.writer.put_metadata("fixstream.services", services_metadata(replies, alive))
 
     def _record_own_diagnostics(self, key: str, timeout_s: float = 2.0) -> None:
         """Wait (bounded) until the diagnostics this recorder published on ``key`` came back through its own
@@ -323,10 +342,7 @@ class RecorderService(Service):
             self._write_failed(self.config.key_expr, exc)
         if self.writer.failed is not None:
             self._write_failed(self.config.key_expr, self.writer.failed)
-        if self._status_replies is not None:
-            (replies, alive), self._status_replies = self._status_replies, None
-            self.services_seen = len(replies)
-            self.writer.put_metadata("fixstream.services", services_metadata(replies, alive))
+        self._write_services()
         now = time.monotonic()
         if final or now >= self._next_diag:
             self._next_diag = now + self.config.diag_interval_s
@@ -465,7 +481,7 @@ class RecorderService(Service):
             return
 
         def ask() -> None:
-            self._status_replies = collect_statuses(session, self.config.status_timeout_s)
+            self._status_replies = collect_statuses(session, self.config.status_timeout_s, self.alive.now)
 
         self._status_thread = threading.Thread(target=ask, name="recorder-status-query", daemon=True)
         self._status_thread.start()
@@ -525,13 +541,46 @@ class RecorderService(Service):
 _STATUS_ATTEMPTS = 3
 
 
-def collect_statuses(session: zenoh.Session, timeout_s: float) -> tuple[list[dict[str, Any]], list[str]]:
-    """Every live service's status and the liveliness tokens alive (``<service>/<instance>``): the status query is
-    repeated (at most :data:`_STATUS_ATTEMPTS` times, each waiting ``timeout_s``) until every service with a token
-    has answered, so a service slow to answer under load is not missing from the recording's metadata."""
+class AliveTokens:
+    """The ``fixstream/alive/**`` tokens alive, as ``<service>/<instance>``, kept by a liveliness subscriber (with
+    history: the tokens declared before it too)."""
+
+    def __init__(self) -> None:
+        self._alive: set[str] = set()
+        self._lock = threading.Lock()
+
+    def watch(self, session: zenoh.Session) -> Any:
+        """Start tracking on ``session``; returns the subscriber (to undeclare)."""
+        return session.liveliness().declare_subscriber(keys.ALIVE_ALL, self._on_sample, history=True)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        try:
+            who = "/".join(keys.parse_alive(str(sample.key_expr)))
+        except ValueError:
+            return
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._alive.add(who)
+            else:
+                self._alive.discard(who)
+
+    def now(self) -> set[str]:
+        with self._lock:
+            return set(self._alive)
+
+
+def collect_statuses(
+    session: zenoh.Session, timeout_s: float, alive_now: Callable[[], set[str]] | None = None
+) -> tuple[list[dict[str, Any]], list[str]]:
+    """Every live service's status and the liveliness tokens alive (``<service>/<instance>``: those ``alive_now``
+    knows, and those a liveliness query finds): the status query is repeated (at most :data:`_STATUS_ATTEMPTS`
+    times, each waiting ``timeout_s``) until every service with a token has answered, so a service slow to answer
+    under load is not missing from the recording's metadata."""
     answered: dict[str, dict[str, Any]] = {}
     alive: set[str] = set()
     for _ in range(_STATUS_ATTEMPTS):
+        if alive_now is not None:
+            alive |= alive_now()
         with contextlib.suppress(Exception):
             for reply in session.liveliness().get(keys.ALIVE_ALL, timeout=timeout_s):
                 if reply.ok is not None:
