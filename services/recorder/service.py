@@ -462,6 +462,9 @@ class RecorderService(Service):
         for pair in [p for p in self._next_seq if p[1] == source]:
             del self._next_seq[pair]
         self.runs[marker.scenario] += 1
+        # ask first: the scenario's look-up below takes seconds on its first run (measured 1.7 s for the demo on an
+        # idle machine), by which time a --rate 0 run may be over and its services stopped (it missed 5 of 9)
+        self._ask_services()
         directories = [self.config.scenarios_dir or _default_scenarios_dir()]
         run = run_context(marker, self.runs[marker.scenario], directories, self.config.max_attachment_bytes)
         self.current_run = run
@@ -472,7 +475,6 @@ class RecorderService(Service):
             self.foxglove.converter = (
                 Converter.for_scenario(run.loaded) if run.loaded is not None else Converter(FrameContext())
             )
-        self._ask_services()
 
     def _ask_services(self) -> None:
         """Query every service's status in the background; the loop writes the answers as metadata."""
@@ -481,7 +483,16 @@ class RecorderService(Service):
             return
 
         def ask() -> None:
-            self._status_replies = collect_statuses(session, self.config.status_timeout_s, self.alive.now)
+            t0 = time.monotonic()
+            replies, alive = collect_statuses(session, self.config.status_timeout_s, self.alive.now)
+            log.info(
+                "%s: %d of %d live services answered the status query (%.1f s)",
+                self.source,
+                len(replies),
+                len(alive),
+                time.monotonic() - t0,
+            )
+            self._status_replies = replies, alive
 
         self._status_thread = threading.Thread(target=ask, name="recorder-status-query", daemon=True)
         self._status_thread.start()
@@ -573,9 +584,9 @@ def collect_statuses(
     session: zenoh.Session, timeout_s: float, alive_now: Callable[[], set[str]] | None = None
 ) -> tuple[list[dict[str, Any]], list[str]]:
     """Every live service's status and the liveliness tokens alive (``<service>/<instance>``: those ``alive_now``
-    knows, and those a liveliness query finds): the status query is repeated (at most :data:`_STATUS_ATTEMPTS`
-    times, each waiting ``timeout_s``) until every service with a token has answered, so a service slow to answer
-    under load is not missing from the recording's metadata."""
+    knows, and those a liveliness query finds; a player's are not counted, it has no status queryable): the status
+    query is repeated (at most :data:`_STATUS_ATTEMPTS` times, each waiting ``timeout_s``) until every service with
+    a token has answered, so a service slow to answer under load is not missing from the recording's metadata."""
     answered: dict[str, dict[str, Any]] = {}
     alive: set[str] = set()
     for _ in range(_STATUS_ATTEMPTS):
@@ -593,6 +604,7 @@ def collect_statuses(
                         doc = json.loads(reply.ok.payload.to_bytes())
                         if isinstance(doc, dict):
                             answered[f"{doc.get('service', '?')}/{doc.get('instance', '?')}"] = doc
+        alive = {a for a in alive if not a.startswith(PLAYER_PREFIX)}  # a player's token has no status queryable
         if alive <= answered.keys():
             break
     return list(answered.values()), sorted(alive)
