@@ -23,7 +23,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import pytest
 import yaml
@@ -33,7 +33,7 @@ from recorder_support import by_topic, recorder, records_of, restamp
 from samples import EXAMPLES
 from test_scenario_files import nav_scenario
 
-from schemas import Depth, Diagnostic
+from schemas import Depth, Diagnostic, Header
 from services.recorder.run_context import ANSWERED_KEY, services_metadata
 from services.recorder.service import RecorderService, collect_statuses
 from services.recorder.settings import RecorderSettings
@@ -383,3 +383,29 @@ def test_a_caller_that_keeps_its_signal_handlers_sees_them_run_during_the_open()
         assert time.monotonic() - t0 >= 1.4  # the open was not cut short
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+def test_the_services_are_asked_before_the_slow_scenario_look_up(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The look-up of a start marker's scenario took 1.7-3 s on a first run; at --rate 0 the services were stopped
+    by the time the status query went out after it (1 to 4 of 9 answered). The query goes out first."""
+    import services.recorder.service as recorder_module
+    from schemas import ScenarioMarker
+
+    rec = RecorderService(RecorderSettings(out_dir=tmp_path, instance="order"))
+    rec._control = cast(Any, object())  # a session stand-in: the query thread's calls fail and are suppressed
+    order: list[str] = []
+    original = recorder_module.run_context
+
+    def slow_lookup(*args: Any, **kwargs: Any) -> Any:
+        order.append("asked" if rec._status_thread is not None else "not asked")
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(recorder_module, "run_context", slow_lookup)
+    marker = ScenarioMarker(
+        header=Header(stamp_ns=1, source="player/default", seq=0), event="start", scenario="nowhere", seed=1
+    )
+    rec.on_sample(keys.scenario("nowhere"), codec.encode(marker), codec.encoding_of(ScenarioMarker))
+    assert order == ["asked"]
+    rec.on_stop()
