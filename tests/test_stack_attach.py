@@ -27,6 +27,7 @@ from shared import codec, keys, local_stack
 from shared.mcap_io import decode_record, iter_records, recording_files
 from shared.session import free_tcp_port, open_session
 from shared.settings import ZenohSettings
+from tools.stack.plan import DEFAULT_ROUTER_PORT
 
 pytestmark = pytest.mark.e2e
 
@@ -157,14 +158,17 @@ class _Up:
 
 
 def test_clients_attach_to_fixstream_up_with_no_flags_even_off_the_default_port(tmp_path: Path) -> None:
-    """The port compose publishes is taken by something else: ``up`` runs its router elsewhere, says where, and
-    ``status``, ``echo``, ``record`` and a library client find it with no flags and no environment."""
+    """The default port (7447) is taken by something else: ``up`` runs its router elsewhere, says where, and
+    ``status``, ``echo``, ``record`` and a library client find it with no flags and no environment. (A port asked
+    for, by FIXSTREAM_ROUTER_PORT or --router-port, is never replaced: tests/test_audit_stack.py.)"""
     (tmp_path / "compose.yaml").write_text(COMPOSE)
+    busy = DEFAULT_ROUTER_PORT
     blocker = socket.socket()
-    blocker.bind(("127.0.0.1", 0))
-    blocker.listen()
-    busy = blocker.getsockname()[1]
-    up = _Up(tmp_path, _client_env(FIXSTREAM_ROUTER_PORT=str(busy)))
+    blocker.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the router binds: TIME_WAIT is no use
+    with contextlib.suppress(OSError):  # a listener there already (another stack): as busy as we need it
+        blocker.bind(("127.0.0.1", busy))
+        blocker.listen()
+    up = _Up(tmp_path, _client_env())
     record: subprocess.Popen[str] | None = None
     try:
         assert wait_until(lambda: up.saw("lbl_nav-x ready") and up.saw("recorder ready"), timeout=90), up.lines

@@ -178,13 +178,22 @@ def recorder_metadata(source: str, settings_json: dict[str, Any]) -> dict[str, s
     }
 
 
-def services_metadata(statuses: Sequence[dict[str, Any]], max_value_bytes: int = 65_536) -> dict[str, str]:
+def services_metadata(
+    statuses: Sequence[dict[str, Any]], alive: Sequence[str] = (), max_value_bytes: int = 65_536
+) -> dict[str, str]:
     """The ``fixstream.services`` metadata record: ``<service>/<instance>`` -> its configuration (JSON), from the
-    status replies of every service that answered."""
+    status replies of every service that answered; and ``answered`` -> how many answered of how many liveliness
+    tokens were alive, and which of those did not answer (``{"answered": n, "alive": m, "missing": [...]}``)."""
     out: dict[str, str] = {}
     for st in statuses:
         who = f"{st.get('service', '?')}/{st.get('instance', '?')}"
         doc = {"config": st.get("config", {}), "version": st.get("version", "")}
         text = json.dumps(doc, sort_keys=True, default=str)
         out[who] = text if len(text) <= max_value_bytes else json.dumps({"truncated": len(text)})
+    missing = sorted(set(alive) - out.keys())
+    out[ANSWERED_KEY] = json.dumps({"answered": len(out), "alive": len(alive), "missing": missing})
     return out
+
+
+#: the entry of ``fixstream.services`` that says how many services answered of how many were alive
+ANSWERED_KEY = "answered"

@@ -32,7 +32,8 @@ that; everything older is in complete chunks on disk (status ``durable``).
 
 **Self-describing files.** Metadata records ``fixstream.recorder`` (version, configuration, what the time fields
 mean), ``fixstream.run`` (scenario, seed, run index, player, origin; from the player's start marker) and
-``fixstream.services`` (every service's configuration from its status queryable, asked at the start marker); the
+``fixstream.services`` (every service's configuration from its status queryable, asked at the start marker until
+every live service answered, and how many did); the
 scenario YAML and its maps as attachments, looked up only inside the scenario directory
 (:mod:`services.recorder.run_context`).
 
@@ -40,7 +41,8 @@ scenario YAML and its maps as attachments, looked up only inside the scenario di
 per ``diag_interval_s`` (with the counts), whatever the flood.
 
 Status (``fixstream/status/recorder/<instance>``) adds ``written``, ``rejected_recorded``, ``durable``, ``lost``,
-``seq_gaps``, ``seq_jumps``, ``seq_resets``, ``write_errors``, ``files_written``, ``recent_files``,
+``seq_gaps``, ``seq_jumps``, ``seq_resets``, ``write_errors``, ``write_failing``, ``last_write_error``,
+``unwritten`` (a write error pauses writing for 1-30 s; the recorder then exits 1), ``files_written``, ``recent_files``,
 ``current_file``, ``fifo`` (capacity, the largest backlog drained at once) and ``runs`` to the base's.
 """
 
@@ -53,7 +55,7 @@ import queue
 import threading
 import time
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, ClassVar, cast
 
@@ -81,6 +83,9 @@ _BATCH = 4096
 #: (key, source) pairs whose next seq is remembered on the fast path, at most
 _MAX_PAIRS = 65_536
 _SCENARIO_KEYS = f"{keys.ROOT}/scenario/**"
+#: after a write error nothing is written for this long (doubling per further error up to the maximum), s
+_WRITE_BACKOFF_MIN_S = 1.0
+_WRITE_BACKOFF_MAX_S = 30.0
 #: an encoding not looked up yet (None means: looked up, not a fixstream encoding)
 _UNSEEN: Any = object()
 
@@ -107,6 +112,12 @@ class RecorderService(Service):
         )
         self.writer.put_metadata("fixstream.recorder", recorder_metadata(self.source, settings.model_dump(mode="json")))
         self.write_errors = 0
+        #: a write failed: nothing is written before this monotonic time (the next attempt; see _write_failed)
+        self._write_paused_until: float | None = None
+        self._write_backoff_s = 0.0
+        #: messages not written because the disk failed (counted while writing is paused)
+        self.unwritten = 0
+        self.last_write_error: str | None = None
         #: next expected seq per (key, header.source): the fast path of the seq check
         self._next_seq: dict[tuple[str, str], int] = {}
         #: decoded model per encoding string (None: not a fixstream encoding)
@@ -120,10 +131,12 @@ class RecorderService(Service):
         self._diag_example: dict[str, tuple[str, str]] = {}
         self._next_diag = 0.0
         self._status_thread: threading.Thread | None = None
-        self._status_replies: list[dict[str, Any]] | None = None
+        self._status_replies: tuple[list[dict[str, Any]], list[str]] | None = None
         #: services whose status answered the last start marker's query (their configuration is in the file)
         self.services_seen = 0
         self._control: zenoh.Session | None = None
+        #: the liveliness tokens alive now (what a start marker's status query waits for)
+        self.alive = AliveTokens()
         #: the Foxglove scene and map channels (FIXSTREAM_RECORDER_FOXGLOVE), converted from what is written
         self.foxglove: FoxgloveChannels | None = None
         if settings.foxglove:
@@ -139,9 +152,24 @@ class RecorderService(Service):
 
     def on_stop(self) -> None:
         """Finalise the current file (summary, footer, fsync)."""
-        path = self.writer.finish()
-        if path is not None:
-            log.info("%s: finalised %s", self.source, path)
+        try:
+            path = self.writer.finish()
+            if path is not None:
+                log.info("%s: finalised %s", self.source, path)
+        except OSError as exc:
+            self._write_failed(self.config.key_expr, exc)
+        finally:
+            self._list_files()
+
+    def _list_files(self) -> None:
+        """Every file this recorder wrote, one path a line, in ``files_list`` (what ``fixstream up`` reports)."""
+        target = self.config.files_list
+        if target is None:
+            return
+        try:
+            target.write_text("".join(f"{p}\n" for p in self.writer.files_written))
+        except OSError as exc:
+            log.error("%s: cannot write the list of files to %s: %s", self.source, target, exc)
 
     def status_extra(self) -> dict[str, Any]:
         current = self.writer.current_path
@@ -156,6 +184,9 @@ class RecorderService(Service):
             "seq_resets": ev["seq_reset"],
             "duplicates": ev["duplicate"],
             "write_errors": self.write_errors,
+            "write_failing": self._write_paused_until is not None,
+            "last_write_error": self.last_write_error,
+            "unwritten": self.unwritten,
             "files_written": self.writer.files_finalised,
             "recent_files": [str(p) for p in self.writer.files_written[-10:]],
             "current_file": str(current) if current is not None else None,
@@ -170,7 +201,8 @@ class RecorderService(Service):
 
     # ----- serving: FIFO handler, batches, no per-sample callback --------------------------------------
     def run(self) -> int:
-        """Open the session, record until stopped (SIGTERM/SIGINT), finalise the file, close. Exit code 0."""
+        """Open the session, record until stopped (SIGTERM/SIGINT), finalise the file, close. Exit code 0; 1 when a
+        write failed (the recording is incomplete or missing: a stack, local or in containers, must not end with 0)."""
         self.session = open_session(self.zenoh_settings)
         subs: list[Any] = []
         declared: list[Any] = []
@@ -184,10 +216,22 @@ class RecorderService(Service):
             self._control = control = open_session(self.zenoh_settings)
             declared.append(control.declare_queryable(keys.status(self.name, self.instance), self._answer_status))
             declared.append(control.liveliness().declare_token(keys.alive(self.name, self.instance)))
+            # which services are alive, known before any start marker asks them for their configuration
+            declared.append(self.alive.watch(control))
             log.info("%s: up, recording %s to %s", self.source, self.config.key_expr, self.writer.out_dir)
             self._serve(subs)
         finally:
             self._close(subs, declared)
+        if self.write_errors:
+            log.error(
+                "%s: %d write error(s), %d message(s) not written, %d file(s) finalised; last: %s",
+                self.source,
+                self.write_errors,
+                self.unwritten,
+                self.writer.files_finalised,
+                self.last_write_error,
+            )
+            return 1
         return 0
 
     def _serve(self, subs: list[Any]) -> None:
@@ -228,15 +272,32 @@ class RecorderService(Service):
                     self._marker(msg)
 
     def _close(self, subs: list[Any], declared: list[Any]) -> None:
-        """Stop the inflow, record what already arrived (at most a FIFO's worth), finalise, close the session."""
+        """Stop the inflow, record what already arrived (at most a FIFO's worth) and the recorder's final diagnostics,
+        finalise, close the session."""
+        own_key = keys.diag(self.name, self.instance)
+        own: Any = None
+        if self.session is not None and zenoh.KeyExpr(self.config.key_expr).intersects(zenoh.KeyExpr(own_key)):
+            # only the recorder's own diagnostics still come in: its final counts (published below) are recorded
+            with contextlib.suppress(Exception):
+                own = self.session.declare_subscriber(own_key, self._enqueue)
         for s in subs:
             with contextlib.suppress(Exception):
                 s.undeclare()
         try:
+            try:
+                while self._take(_BATCH):
+                    pass
+                self._report_drops()
+                self._housekeeping(final=True)
+                if own is not None:
+                    self._record_own_diagnostics(own_key)
+            finally:
+                if own is not None:
+                    with contextlib.suppress(Exception):
+                        own.undeclare()
             while self._take(_BATCH):
                 pass
-            self._report_drops()
-            self._housekeeping(final=True)
+            self._await_services()
             self.on_stop()
         finally:
             for d in reversed(declared):
@@ -251,6 +312,28 @@ class RecorderService(Service):
                         session.close()
             log.info("%s: stopped", self.source)
 
+    def _await_services(self) -> None:
+        """A status query still in flight (a start marker just before the stop): its answers go into the file."""
+        thread = self._status_thread
+        if thread is not None and thread.is_alive():
+            thread.join(timeout=_STATUS_ATTEMPTS * 2 * self.config.status_timeout_s)
+        self._write_services()
+
+    def _write_services(self) -> None:
+        """The services' configuration, once the start marker's status query has its answers."""
+        if self._status_replies is not None:
+            (replies, alive), self._status_replies = self._status_replies, None
+            self.services_seen = len(replies)
+            self.writer.put_metadata("fixstream.services", services_metadata(replies, alive))
+
+    def _record_own_diagnostics(self, key: str, timeout_s: float = 2.0) -> None:
+        """Wait (bounded) until the diagnostics this recorder published on ``key`` came back through its own
+        subscription and are written."""
+        published = self._seq.get(key, 0)
+        deadline = time.monotonic() + timeout_s
+        while self._next_seq.get((key, self.source), 0) < published and time.monotonic() < deadline:
+            self._take(_BATCH, wait_s=0.02)
+
     def _housekeeping(self, final: bool = False) -> None:
         """After every batch: the writer's flush and rotation, the services' configuration, the diagnostics."""
         try:
@@ -259,10 +342,7 @@ class RecorderService(Service):
             self._write_failed(self.config.key_expr, exc)
         if self.writer.failed is not None:
             self._write_failed(self.config.key_expr, self.writer.failed)
-        if self._status_replies is not None:
-            replies, self._status_replies = self._status_replies, None
-            self.services_seen = len(replies)
-            self.writer.put_metadata("fixstream.services", services_metadata(replies))
+        self._write_services()
         now = time.monotonic()
         if final or now >= self._next_diag:
             self._next_diag = now + self.config.diag_interval_s
@@ -299,6 +379,8 @@ class RecorderService(Service):
         if type(msg) is ScenarioMarker:
             self._marker(msg)
         stamp = h.stamp_ns
+        if self._write_paused_until is not None and self._write_paused():
+            return
         try:
             self.writer.write_json(key, model, model.__pydantic_serializer__.to_json(msg), stamp)
             if self.foxglove is not None:
@@ -344,6 +426,8 @@ class RecorderService(Service):
                     self._seq_event(pair, seq)
         self._diag_since[reason] += 1
         self._diag_example[reason] = (key, detail)
+        if self._write_paused_until is not None and self._write_paused():
+            return
         try:
             self.writer.write_rejected(Rejected(key, encoding, reason, detail[:1000], payload, time.time_ns()), stamp)
         except OSError as exc:
@@ -378,6 +462,9 @@ class RecorderService(Service):
         for pair in [p for p in self._next_seq if p[1] == source]:
             del self._next_seq[pair]
         self.runs[marker.scenario] += 1
+        # ask first: the scenario's look-up below takes seconds on its first run (measured 1.7 s for the demo on an
+        # idle machine), by which time a --rate 0 run may be over and its services stopped (it missed 5 of 9)
+        self._ask_services()
         directories = [self.config.scenarios_dir or _default_scenarios_dir()]
         run = run_context(marker, self.runs[marker.scenario], directories, self.config.max_attachment_bytes)
         self.current_run = run
@@ -388,7 +475,6 @@ class RecorderService(Service):
             self.foxglove.converter = (
                 Converter.for_scenario(run.loaded) if run.loaded is not None else Converter(FrameContext())
             )
-        self._ask_services()
 
     def _ask_services(self) -> None:
         """Query every service's status in the background; the loop writes the answers as metadata."""
@@ -397,15 +483,16 @@ class RecorderService(Service):
             return
 
         def ask() -> None:
-            out: list[dict[str, Any]] = []
-            with contextlib.suppress(Exception):
-                for reply in query_all(session, keys.STATUS_ALL, self.config.status_timeout_s):
-                    if reply.ok is not None:
-                        with contextlib.suppress(ValueError):
-                            doc = json.loads(reply.ok.payload.to_bytes())
-                            if isinstance(doc, dict):
-                                out.append(doc)
-            self._status_replies = out
+            t0 = time.monotonic()
+            replies, alive = collect_statuses(session, self.config.status_timeout_s, self.alive.now)
+            log.info(
+                "%s: %d of %d live services answered the status query (%.1f s)",
+                self.source,
+                len(replies),
+                len(alive),
+                time.monotonic() - t0,
+            )
+            self._status_replies = replies, alive
 
         self._status_thread = threading.Thread(target=ask, name="recorder-status-query", daemon=True)
         self._status_thread.start()
@@ -430,13 +517,97 @@ class RecorderService(Service):
             self.report(key, reason, text, count=total, counts=counts)
 
     def _write_failed(self, key: str, exc: OSError) -> None:
-        """A disk error: drop the current file (readable up to its last chunk) and report it."""
+        """A disk error: drop the current file (readable up to its last chunk), report it, and write nothing for a
+        while (1 s, doubling to 30 s): a directory that cannot be written is tried once per pause, not once per
+        message (each attempt would be a new file name); the messages of the pause are counted (``unwritten``)."""
         self.write_errors += 1
         path = self.writer.abandon()
-        log.error("%s: writing %s failed: %s", self.source, path, exc)
-        self.counters.last_error, self.counters.last_error_key = f"write_error: {path}: {exc}", key
+        self._write_backoff_s = min(_WRITE_BACKOFF_MAX_S, max(_WRITE_BACKOFF_MIN_S, 2 * self._write_backoff_s))
+        self._write_paused_until = time.monotonic() + self._write_backoff_s
+        where = path if path is not None else self.writer.out_dir
+        log.error(
+            "%s: writing %s failed: %s (%d message(s) not written so far; next attempt in %g s)",
+            self.source,
+            where,
+            exc,
+            self.unwritten,
+            self._write_backoff_s,
+        )
+        self.last_write_error = f"{where}: {exc}"
+        self.counters.last_error, self.counters.last_error_key = f"write_error: {where}: {exc}", key
         self._diag_since["write_error"] += 1
-        self._diag_example["write_error"] = (key, f"{path}: {exc}")
+        self._diag_example["write_error"] = (key, f"{where}: {exc}")
+
+    def _write_paused(self) -> bool:
+        """Whether writing is paused after a write error (the message is then counted, not written)."""
+        until = self._write_paused_until
+        if until is not None and time.monotonic() < until:
+            self.unwritten += 1
+            return True
+        self._write_paused_until = None  # try again (a further error pauses twice as long)
+        return False
+
+
+#: status queries a start marker makes at most, until every live service has answered
+_STATUS_ATTEMPTS = 3
+
+
+class AliveTokens:
+    """The ``fixstream/alive/**`` tokens alive, as ``<service>/<instance>``, kept by a liveliness subscriber (with
+    history: the tokens declared before it too)."""
+
+    def __init__(self) -> None:
+        self._alive: set[str] = set()
+        self._lock = threading.Lock()
+
+    def watch(self, session: zenoh.Session) -> Any:
+        """Start tracking on ``session``; returns the subscriber (to undeclare)."""
+        return session.liveliness().declare_subscriber(keys.ALIVE_ALL, self._on_sample, history=True)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        try:
+            who = "/".join(keys.parse_alive(str(sample.key_expr)))
+        except ValueError:
+            return
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._alive.add(who)
+            else:
+                self._alive.discard(who)
+
+    def now(self) -> set[str]:
+        with self._lock:
+            return set(self._alive)
+
+
+def collect_statuses(
+    session: zenoh.Session, timeout_s: float, alive_now: Callable[[], set[str]] | None = None
+) -> tuple[list[dict[str, Any]], list[str]]:
+    """Every live service's status and the liveliness tokens alive (``<service>/<instance>``: those ``alive_now``
+    knows, and those a liveliness query finds; a player's are not counted, it has no status queryable): the status
+    query is repeated (at most :data:`_STATUS_ATTEMPTS` times, each waiting ``timeout_s``) until every service with
+    a token has answered, so a service slow to answer under load is not missing from the recording's metadata."""
+    answered: dict[str, dict[str, Any]] = {}
+    alive: set[str] = set()
+    for _ in range(_STATUS_ATTEMPTS):
+        if alive_now is not None:
+            alive |= alive_now()
+        with contextlib.suppress(Exception):
+            for reply in session.liveliness().get(keys.ALIVE_ALL, timeout=timeout_s):
+                if reply.ok is not None:
+                    with contextlib.suppress(ValueError):
+                        alive.add("/".join(keys.parse_alive(str(reply.ok.key_expr))))
+        with contextlib.suppress(Exception):
+            for reply in query_all(session, keys.STATUS_ALL, timeout_s):
+                if reply.ok is not None:
+                    with contextlib.suppress(ValueError):
+                        doc = json.loads(reply.ok.payload.to_bytes())
+                        if isinstance(doc, dict):
+                            answered[f"{doc.get('service', '?')}/{doc.get('instance', '?')}"] = doc
+        alive = {a for a in alive if not a.startswith(PLAYER_PREFIX)}  # a player's token has no status queryable
+        if alive <= answered.keys():
+            break
+    return list(answered.values()), sorted(alive)
 
 
 def _try_recv(handler: Any) -> Any:

@@ -14,6 +14,7 @@
 ``FIXSTREAM_RECORDER_FOXGLOVE``         also write Foxglove scene and map channels (default false)
 ``FIXSTREAM_RECORDER_SCENARIOS_DIR``    the only directory a start marker's scenario name is looked up in
 ``FIXSTREAM_RECORDER_DIAG_INTERVAL_S``  the recorder's own diagnostics: one per reason per interval (1 s)
+``FIXSTREAM_RECORDER_FILES_LIST``       a file to write the paths of this run's MCAP files to, one a line, at exit
 =====================================  ==============================================================
 
 The Zenoh connection comes from ``FIXSTREAM_ZENOH_*`` (:class:`shared.settings.ZenohSettings`).
@@ -87,6 +88,11 @@ class RecorderSettings(ServiceSettings):
     )
     status_timeout_s: float = Field(
         default=2.0, gt=0.0, le=60.0, description="how long a start marker's query of the services' status waits, s"
+    )
+    files_list: Path | None = Field(
+        default=None,
+        description="at exit, write the path of every MCAP file this recorder finalised to this file, one a line"
+        " (fixstream up reports exactly its own recorder's files)",
     )
     max_attachment_bytes: int = Field(
         default=4 << 20, ge=0, description="largest scenario file or map attached to the recording, bytes"

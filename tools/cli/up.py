@@ -6,7 +6,7 @@ embedded ``fixstream router`` on loopback (port 7447, as compose publishes it, w
 on the console), leaves the router's endpoint where clients look (:mod:`shared.local_stack`), and starts every
 other service's command locally in depends_on order. Output lines are prefixed with the service name. When the
 driver service (label ``fixstream.role: driver``, the player) exits, or on Ctrl-C, the others are stopped with
-SIGTERM in reverse order; the MCAP files written to the recordings directory are listed at the end.
+SIGTERM in reverse order; the MCAP files the run's recorder wrote are listed at the end (none: exit code 1).
 With ``--report`` (``make demo``) the run's recording is then reported (``fixstream report``: HTML and metrics
 JSON in ``<recording>_report/``) and the page's path printed.
 """
@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -42,8 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--router-port",
         type=int,
-        help="the embedded router's loopback port (default: $FIXSTREAM_ROUTER_PORT or 7447 when free, else any free"
-        " port; 0: any free port). Clients started with no --connect find it either way",
+        help="the embedded router's loopback port, an error when it is in use (default: $FIXSTREAM_ROUTER_PORT, the"
+        " same; else 7447 when free, else any free port; 0: any free port). Clients started with no --connect find"
+        " it either way",
     )
     parser.add_argument(
         "--secure",
@@ -95,6 +97,8 @@ def run(args: argparse.Namespace) -> int:
             plan.temp_dirs.append(pki.directory)
     except (ComposeError, OSError) as exc:
         console.event(f"error: {exc}")
+        if not (sys.stdout.isatty() and sys.stderr.isatty()):  # the one line on stderr too (unless one terminal)
+            print(f"fixstream up: {exc}", file=sys.stderr)
         return 2
     console.event(f"{project.path}: {', '.join(names)}")
     if args.dry_run:
@@ -115,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
             local_stack.withdraw(announcement)
     for rec in result.recordings:
         console.event(f"recording: {rec} ({rec.stat().st_size} bytes)")
-    if not result.recordings and plan.output_dirs:
+    if not result.recordings and plan.output_dirs and not result.recorders:
         console.event(f"no new MCAP file in {', '.join(str(d) for d in plan.output_dirs)}")
     for failure in result.failures:
         console.event(f"failed: {failure}")

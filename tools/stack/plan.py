@@ -1,14 +1,17 @@
 """Turn a compose project into local processes: the same commands, an embedded router, loopback endpoints.
 
 * A service whose image is ``eclipse/zenoh[:tag]`` becomes ``fixstream router --listen
-  tcp/127.0.0.1:<port>``: the port compose publishes (``$FIXSTREAM_ROUTER_PORT``, default 7447) when it is
-  free, else a free one (its ``--connect`` endpoints to other routers are rewritten too).
+  tcp/127.0.0.1:<port>``: the port asked for (``--router-port``, else ``$FIXSTREAM_ROUTER_PORT``; busy is an
+  error), else 7447 when it is free, else a free one (its ``--connect`` endpoints to other routers are rewritten
+  too).
 * Every other service runs its ``entrypoint + command`` locally: ``fixstream`` is this interpreter's
   ``python -m tools.cli.main`` and ``python``/``python3`` is this interpreter.
 * Endpoints ``<proto>/<router host>:<container port>`` in environment values and arguments become the
   loopback router, and ``FIXSTREAM_ZENOH_CONNECT`` defaults to it.
 * Container paths under a bind volume's target become the host path (created if missing); named and
   anonymous volumes become temporary directories.
+* A recorder (``fixstream run recorder``, ``fixstream record``) is told to list the files it wrote
+  (``FIXSTREAM_RECORDER_FILES_LIST``): the run's recordings are those, not whatever else appeared in the folder.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from shared import local_stack
 from shared.session import free_tcp_port, port_free
 
 from .compose import ALIVE_LABEL, ComposeError, ComposeProject, ServiceSpec, Volume
@@ -34,6 +38,8 @@ DEFAULT_ROUTER_PORT = 7447
 #: interpolation variable with the router port compose publishes on the host
 ROUTER_PORT_VAR = "FIXSTREAM_ROUTER_PORT"
 DEFAULT_STOP_TIMEOUT = 10.0
+#: the recorder setting (services/recorder/settings.py) the runner sets to learn which files its recorder wrote
+RECORDER_FILES_LIST_VAR = "FIXSTREAM_RECORDER_FILES_LIST"
 _ENDPOINT = re.compile(r"^(?P<proto>[a-z0-9]+)/(?P<host>\[[^\]]*\]|[^:/]+):(?P<port>\d+)")
 
 
@@ -52,6 +58,8 @@ class ProcessSpec:
     ready_key: str | None = None
     stop_signal: int = signal.SIGTERM
     stop_timeout: float = 10.0
+    #: a recorder's list of the MCAP files it wrote (``FIXSTREAM_RECORDER_FILES_LIST``, in a temporary directory)
+    files_list: Path | None = None
 
 
 @dataclass
@@ -185,13 +193,32 @@ def _local_argv(argv: list[str]) -> list[str]:
 
 
 def _router_port(project: ComposeProject, requested: int | None) -> int:
-    """The first router's loopback port: ``requested`` (0: any free port), else the port compose publishes
-    (``$FIXSTREAM_ROUTER_PORT``, default 7447) when it is free, so that clients attach with no flags; else a
-    free port (the runner says where, and announces it for clients: shared.local_stack)."""
-    if requested == 0:
+    """The first router's loopback port: ``requested`` (0: any free port), else ``$FIXSTREAM_ROUTER_PORT``,
+    else the port compose publishes by default (7447), so that clients attach with no flags. A port asked for
+    (``requested`` or the variable) must be free: a busy one is a :class:`ComposeError`, never replaced in
+    silence (clients given that port would find no router). Only the default falls back to a free port (the
+    runner says where, and announces it for clients: shared.local_stack)."""
+    if requested is not None:
+        port, source = requested, "--router-port"
+    elif project.variables.get(ROUTER_PORT_VAR):
+        text = project.variables[ROUTER_PORT_VAR].strip()
+        if not text.isdigit():
+            raise ComposeError(f"${ROUTER_PORT_VAR}={text!r} is not a port number (1-65535)")
+        port, source = int(text), f"${ROUTER_PORT_VAR}"
+    else:
+        # also skip the port of a stack announced but whose router is not listening yet (two stacks started at once)
+        claimed = any(s.endpoint.endswith(f":{DEFAULT_ROUTER_PORT}") for s in local_stack.running_stacks())
+        return DEFAULT_ROUTER_PORT if not claimed and port_free(DEFAULT_ROUTER_PORT) else free_tcp_port()
+    if not 0 <= port <= 65535:
+        raise ComposeError(f"{source} {port} is not a port number (1-65535; 0: any free port)")
+    if port == 0:
         return free_tcp_port()
-    preferred = requested or int(project.variables.get(ROUTER_PORT_VAR) or DEFAULT_ROUTER_PORT)
-    return preferred if port_free(preferred) else free_tcp_port()
+    if not port_free(port):
+        raise ComposeError(
+            f"{source} {port}: the port is in use on 127.0.0.1 (another router or stack?); free it, choose another"
+            " port, or give 0 for any free port"
+        )
+    return port
 
 
 def plan_stack(
@@ -207,7 +234,7 @@ def plan_stack(
 
     ``stop_timeout`` overrides every service's ``stop_grace_period`` (default 10 s, as compose).
     ``create_dirs``: create missing bind sources and temporary directories for named volumes.
-    ``router_port``: the embedded router's port (None: compose's published port if free, see
+    ``router_port``: the embedded router's port (None: ``$FIXSTREAM_ROUTER_PORT``, else 7447 if free, see
     :func:`_router_port`; 0: any free port).
     ``secure``: the stack runs over mutual TLS with these certificates, every process with the identity of its
     role (:func:`identity_of`), and the router applies the repository's access control (:data:`ROUTER_ACL`)."""
@@ -265,6 +292,16 @@ def plan_stack(
                     "FIXSTREAM_ZENOH_TLS_KEY": str(ident.key),
                 }
             )
+        files_list = None
+        if not spec.is_zenoh_router and identity_of(argv) == "recorder" and RECORDER_FILES_LIST_VAR not in env:
+            # what this run's recorder wrote, told by the recorder itself: a second stack writing into the same
+            # directory at the same time does not make its files ours
+            files_dir = Path(tempfile.gettempdir())
+            if create_dirs:
+                files_dir = Path(tempfile.mkdtemp(prefix="fixstream-files-"))
+                temp_dirs.append(files_dir)
+            files_list = files_dir / f"{spec.name}.files"
+            env[RECORDER_FILES_LIST_VAR] = str(files_list)
         cwd = Path(rewrite.path(spec.working_dir)) if spec.working_dir else project.directory
         if not cwd.is_dir():
             cwd = project.directory
@@ -280,6 +317,7 @@ def plan_stack(
                 ready_key=None if spec.is_zenoh_router else _ready_key(spec, argv, env),
                 stop_signal=_signal(spec.stop_signal),
                 stop_timeout=_stop_timeout(spec, stop_timeout),
+                files_list=files_list,
             )
         )
     client_tls: dict[str, Path] = {}

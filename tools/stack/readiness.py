@@ -37,7 +37,9 @@ class LivelinessWatch:
         from shared.settings import ZenohSettings
 
         self._zenoh = zenoh
-        self._session = open_session(ZenohSettings(mode="client", connect=[self.endpoint], listen=[], **self.tls))
+        # the runner's own SIGINT/SIGTERM handling stays in place: it stops the stack's processes first
+        settings = ZenohSettings(mode="client", connect=[self.endpoint], listen=[], **self.tls)
+        self._session = open_session(settings, take_signals=False)
         self._subscriber = self._session.liveliness().declare_subscriber(self.key_expr, self._on_sample, history=True)
 
     def _on_sample(self, sample: Any) -> None:

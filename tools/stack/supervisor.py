@@ -7,7 +7,8 @@
   runner stops the stack: each running process gets its stop signal (SIGTERM) in reverse start order
   and up to its timeout before SIGKILL. A second signal kills the rest at once.
 * The exit code is the driver's if it failed, 1 if another service failed (non-zero exit, killed after
-  the timeout, never ready), 128+signal after an interrupt, else 0. A stopped service must exit 0 or die
+  the timeout, never ready; a recorder exits 1 when a write failed) or a recorder wrote no MCAP file,
+  128+signal after an interrupt, else 0. A stopped service must exit 0 or die
   by the stop signal; a stopped driver (interrupted before its end) may exit with any code.
 """
 
@@ -48,6 +49,8 @@ class StackResult:
     failures: list[str] = field(default_factory=list)
     recordings: list[Path] = field(default_factory=list)
     start_order: list[str] = field(default_factory=list)
+    #: recorder services that ran (their files are the recordings)
+    recorders: list[str] = field(default_factory=list)
 
 
 def describe_exit(rc: int) -> str:
@@ -100,15 +103,21 @@ class Supervisor:
             for p in self.started:
                 if p.reader is not None:
                     p.reader.join(timeout=2.0)
+            recordings = self._recordings(t0)
             for d in self.plan.temp_dirs:
                 shutil.rmtree(d, ignore_errors=True)
-        recordings = self._recordings(t0)
+        recorders = [p.spec.service for p in self.started if p.spec.files_list is not None]
+        if recorders and not recordings and not self.signals:
+            # a recording is never silently empty with exit code 0 (docs/stack.md)
+            self.failures.append(f"{', '.join(recorders)}: no MCAP file written")
+            self.console.event(self.failures[-1])
         return StackResult(
             exit_code=self._exit_code(),
             returncodes={name: p.returncode for name, p in self.procs.items()},
             failures=list(self.failures),
             recordings=recordings,
             start_order=[p.spec.service for p in self.started],
+            recorders=recorders,
         )
 
     # ----- main loop ------------------------------------------------------------------------------
@@ -317,6 +326,15 @@ class Supervisor:
         return 0
 
     def _recordings(self, since: float) -> list[Path]:
+        """The run's MCAP files: those its recorders listed (every recorder that ran lists its own, see
+        ProcessSpec.files_list), else the new ones in the writable mounts."""
+        lists = [p.spec.files_list for p in self.started if p.spec.files_list is not None]
+        if lists:
+            listed: list[Path] = []
+            for path in lists:
+                with contextlib.suppress(OSError):
+                    listed += [Path(line) for line in path.read_text().splitlines() if line.strip()]
+            return [f for f in dict.fromkeys(listed) if f.is_file()]
         found: list[Path] = []
         for d in self.plan.output_dirs:
             if d.is_dir():
