@@ -8,7 +8,8 @@
 * ``TIMEOUT`` (3): what the command waited for did not come in time: the services a play waits for, the
   ``--count`` messages of ``echo`` within ``--timeout``, any message at all for ``topics`` and ``hz``, any answer
   for ``status``.
-* ``INTERRUPTED`` (130): Ctrl-C before a command had set up its own handling (the shell's convention, 128 + SIGINT).
+* ``INTERRUPTED`` (130): Ctrl-C before a command had set up its own handling, also while it waits for its router
+  (the shell's convention, 128 + SIGINT); 143: SIGTERM in that same wait (128 + SIGTERM).
   Commands that run until stopped (``echo``, ``hz``, ``foxglove``, ``record``, ``router``, ``run``) end normally on
   Ctrl-C or SIGTERM.
 """
@@ -25,5 +26,6 @@ INTERRUPTED = 130
 EPILOG = (
     "exit status: 0 ok; 1 failure (e.g. a replay interrupted, an invalid scenario file); 2 usage or bad input (an"
     " unknown option, an unreadable file, an unreachable router); 3 timeout (what the command waited for did not come:"
-    " services to wait for, echo --count messages, any message for topics/hz, any status answer); 130 Ctrl-C."
+    " services to wait for, echo --count messages, any message for topics/hz, any status answer); 130 Ctrl-C (143"
+    " SIGTERM) during start-up."
 )
