@@ -157,6 +157,20 @@ def turning_path(sc: FlightScenario, rng: np.random.Generator):  # type: ignore[
     return waypoint_path(wps, sc.speed_mps, 3.0, sc.rate_hz)
 
 
+def family_flight(fam: Family, seed0: int, r: int):  # type: ignore[no-untyped-def]
+    """Run ``r`` of family ``fam``: a new world and flight from ``SeedSequence([seed0, r])`` (world, flight and path
+    streams), and the flight's messages; every bench that scores these families flies the same ones."""
+    w_seq, f_seq, p_seq = np.random.SeedSequence([seed0, r]).spawn(3)
+    sc = fam.scenario
+    if fam.world == "coarse_flat":
+        world = coarse_partly_flat_world(r, np.random.default_rng(w_seq))
+    else:
+        world = make_world(sc, np.random.default_rng(w_seq))
+    path = turning_path(sc, np.random.default_rng(p_seq)) if fam.turn else None
+    flight = simulate_flight(sc, world, np.random.default_rng(f_seq), path)
+    return flight, list(flight.messages())
+
+
 def run_family(
     fam: Family,
     runs: int,
@@ -168,16 +182,7 @@ def run_family(
     """Score ``runs`` flights of ``fam`` with each preset; ``on_run`` sees the tallies after every run."""
     tallies = {p: Tally() for p in presets}
     for r in range(runs):
-        ss = np.random.SeedSequence([seed0, r])
-        w_seq, f_seq, p_seq = ss.spawn(3)
-        sc = fam.scenario
-        if fam.world == "coarse_flat":
-            world = coarse_partly_flat_world(r, np.random.default_rng(w_seq))
-        else:
-            world = make_world(sc, np.random.default_rng(w_seq))
-        path = turning_path(sc, np.random.default_rng(p_seq)) if fam.turn else None
-        flight = simulate_flight(sc, world, np.random.default_rng(f_seq), path)
-        msgs = list(flight.messages())
+        flight, msgs = family_flight(fam, seed0, r)
         for preset in presets:
             score_run(flight, msgs, preset_config(preset), tallies[preset], fam.turn, posterior)
         if on_run is not None:

@@ -285,9 +285,7 @@ def run(
     seed0: int = 16,
     on_run: Callable[[dict[str, Any]], None] | None = None,
 ) -> dict[str, Any]:
-    from bench.bench_terrain_families import FAMILIES, preset_config, turning_path
-    from services.terrain_nav.simulation import make_world, simulate_flight
-    from services.terrain_nav.worlds import coarse_partly_flat_world
+    from bench.bench_terrain_families import FAMILIES, family_flight, preset_config
 
     out: dict[str, Any] = {}
     for fam in FAMILIES:
@@ -296,15 +294,7 @@ def run(
         tallies = {p: BoundTally() for p in presets}
         t0 = time.time()
         for r in range(runs):  # the bench's seeding: the same worlds and flights
-            w_seq, f_seq, p_seq = np.random.SeedSequence([seed0, r]).spawn(3)
-            sc = fam.scenario
-            if fam.world == "coarse_flat":
-                world = coarse_partly_flat_world(r, np.random.default_rng(w_seq))
-            else:
-                world = make_world(sc, np.random.default_rng(w_seq))
-            path = turning_path(sc, np.random.default_rng(p_seq)) if fam.turn else None
-            flight = simulate_flight(sc, world, np.random.default_rng(f_seq), path)
-            msgs = list(flight.messages())
+            flight, msgs = family_flight(fam, seed0, r)
             cache: dict[tuple[float, float, float, bool], dict[str, float]] = {}
             for p in presets:
                 score_bound(flight, msgs, preset_config(p), tallies[p], cache=cache)
