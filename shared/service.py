@@ -520,7 +520,7 @@ class Service:
                 count=self.seq.events["seq_gap"],
                 counts=self.seq.as_dict(),
                 level="warning",
-                stamp_ns=stamp,
+                stamp_ns=self._diag_stamp(stamp),  # the header is not validated yet: a negative stamp is possible
             )
         elif check.event == "duplicate":
             return False
@@ -592,9 +592,11 @@ class Service:
         """What a diagnostic about the unpacked payload ``obj`` is stamped with: its header's stamp when the header
         unpacks and the stamp is within the input bound, else the data clock."""
         header = codec.header_of(obj)
-        if header is not None and 0 <= header[2] <= MAX_INPUT_STAMP_NS:
-            return header[2]
-        return self.data_clock_ns
+        return self.data_clock_ns if header is None else self._diag_stamp(header[2])
+
+    def _diag_stamp(self, stamp_ns: int) -> int:
+        """An input's stamp, for a diagnostic about it, when it is within the input bound, else the data clock."""
+        return stamp_ns if 0 <= stamp_ns <= MAX_INPUT_STAMP_NS else self.data_clock_ns
 
     def _on_marker(self, marker: ScenarioMarker) -> list[Output]:
         """A start marker ends a run still pending; an end marker waits for what it announced (module doc)."""

@@ -50,10 +50,10 @@ def test_runs_on_a_dask_cluster_give_the_local_json(name: str, scheduler: str, t
     runs = 3
     local = montecarlo.dumps(montecarlo.run_montecarlo(load_scenario(path), runs, seed=9, workers=1, progress=False))
     out = tmp_path / "dask.json"
-    proc = _mc(str(path), "--runs", str(runs), "--seed", "9", "--out", str(out), "--scheduler", scheduler)
+    proc = _mc(str(path), "--runs", str(runs), "--seed", "9", "--out", str(out), "--scheduler", scheduler, "--progress")
     assert proc.returncode == 0, proc.stderr
     assert out.read_text() == local
-    assert f"{runs}/{runs}" in proc.stderr  # the progress bar, as for local runs
+    assert f"{runs}/{runs}" in proc.stderr  # the progress bar, as for local runs (asked for: not a terminal here)
     assert f"on the Dask cluster at {scheduler}" in proc.stderr
 
 
