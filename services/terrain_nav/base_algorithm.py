@@ -25,12 +25,12 @@ import numpy as np
 from . import conditions as cond
 from .config import TerrainNavConfig
 from .core import TerrainNavigator
-from .evaluation import Evaluation, FixData
+from .evaluation import Evaluation, FixData, finite
 from .filter import KalmanBank
 from .maps import ReferenceMap
 from .models import measurement_variance
 from .output import grid_covariance
-from .search import SearchContext
+from .search import OutOfZone, SearchContext
 from .window import SegmentedWindow
 
 
@@ -39,6 +39,7 @@ class BaseSearch:
 
     def __init__(self, ctx: SearchContext) -> None:
         self.cfg = c = ctx.cfg
+        self.out_of_zone = OutOfZone(c.out_of_zone_period_s)
         self.map = ref_map = ctx.map
         self.grid = ctx.grid
         self.D1 = ctx.D1
@@ -65,7 +66,7 @@ class BaseSearch:
         self.first_after_gap = True
         self.total_meas = 0
         self.n_evaluations = 0
-        self._last_ooz_t: float | None = None
+        self.out_of_zone.reset()
         self._last: tuple[float, float, float] | None = None  # (t, x, z) of the last processed sample
 
     def push_sample(
@@ -79,9 +80,7 @@ class BaseSearch:
         v_ground: float = 0.0,
         vh: float | None = None,
     ) -> list[Evaluation]:
-        if not valid or not (
-            math.isfinite(t) and math.isfinite(x) and math.isfinite(z) and math.isfinite(h_ins) and math.isfinite(h_ra)
-        ):
+        if not valid or not finite(t, x, z, h_ins, h_ra):
             self.counters["samples_discarded"] += 1
             return []
         ref, cfg = self.map, self.cfg
@@ -93,10 +92,7 @@ class BaseSearch:
         if not (0 <= I0 < n_i and 0 <= J0 < n_j and self.base_zone[I0, J0]):
             self.counters["samples_out_of_zone"] += 1
             self.first_after_gap = True
-            if self._last_ooz_t is None or t - self._last_ooz_t >= cfg.out_of_zone_period_s:
-                self._last_ooz_t = t
-                return [Evaluation(t=t, state="OUT_OF_ZONE", detail="INS position outside the correction zone")]
-            return []
+            return self.out_of_zone.at(t)
         # gap handling (same rules as the modified algorithm, at the sample level)
         if self._last is not None:
             cell_time = ref.cell_m / max(v_ground, cfg.min_speed_mps)

@@ -23,7 +23,7 @@ from .geometry import F64
 from .models import mean_slope, measurement_variance
 from .output import cell_centre_terms, grid_covariance, refine
 from .resampler import CellMeasurement, CellResampler
-from .search import SearchContext
+from .search import OutOfZone, SearchContext
 from .window import SegmentedWindow
 
 
@@ -32,6 +32,7 @@ class ModifiedSearch:
 
     def __init__(self, ctx: SearchContext) -> None:
         self.cfg = cfg = ctx.cfg
+        self.out_of_zone = OutOfZone(cfg.out_of_zone_period_s)
         self.map = ref_map = ctx.map
         self.grid = ctx.grid
         self.zone = ctx.zone
@@ -65,7 +66,7 @@ class ModifiedSearch:
         self.last_meas: CellMeasurement | None = None
         self.total_meas = 0
         self.n_evaluations = 0
-        self._last_ooz_t: float | None = None
+        self.out_of_zone.reset()
 
     # --- block 1: cell-rate conversion ------------------------------------------------------------------------
     def push_sample(
@@ -87,11 +88,7 @@ class ModifiedSearch:
         if not in_zone:
             self.counters["samples_out_of_zone"] += 1
             self.first_after_gap = True  # re-entry gets post-gap handling
-            period = self.cfg.out_of_zone_period_s
-            if self._last_ooz_t is None or t - self._last_ooz_t >= period:
-                self._last_ooz_t = t
-                return [Evaluation(t=t, state="OUT_OF_ZONE", detail="INS position outside the correction zone")]
-            return []
+            return self.out_of_zone.at(t)
         return self.push_measurement(m) if m is not None else []
 
     # --- block 2: gap handling and grouping -------------------------------------------------------------------

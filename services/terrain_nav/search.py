@@ -72,5 +72,24 @@ class RecurrentSearch(Protocol):
         ...
 
 
+class OutOfZone:
+    """The OUT_OF_ZONE verdicts of a search whose INS position left the correction zone: at most one per
+    ``period_s`` of data time (``out_of_zone_period_s``), whatever the sample rate; :meth:`reset` with the search."""
+
+    def __init__(self, period_s: float) -> None:
+        self.period_s = period_s
+        self.last_t: float | None = None
+
+    def reset(self) -> None:
+        self.last_t = None
+
+    def at(self, t: float) -> list[Evaluation]:
+        """The verdict to emit for an out-of-zone sample at ``t`` s (none within ``period_s`` of the last)."""
+        if self.last_t is None or t - self.last_t >= self.period_s:
+            self.last_t = t
+            return [Evaluation(t=t, state="OUT_OF_ZONE", detail="INS position outside the correction zone")]
+        return []
+
+
 #: how a navigator builds its search
 SearchFactory = Callable[[SearchContext], RecurrentSearch]
