@@ -33,6 +33,8 @@ class Inbox:
         self._admitted = 0
         self._taken = 0
         self.dropped = 0
+        #: of ``dropped``, those released by ``put``'s ``stop`` event rather than after ``block_s``
+        self.dropped_at_stop = 0
         self._shedding = False
 
     @property
@@ -60,10 +62,12 @@ class Inbox:
             now = time.monotonic()
             if deadline is None:
                 deadline = now + self.block_s
-            if shedding or stop.is_set() or now >= deadline:
+            stopped = stop.is_set()
+            if shedding or stopped or now >= deadline:
                 with self._lock:
                     self._shedding = True
                     self.dropped += 1
+                    self.dropped_at_stop += stopped
                 return False
             time.sleep(0.001)
 
@@ -81,7 +85,9 @@ class Inbox:
     def qsize(self) -> int:
         return self._q.qsize()
 
-    def take_dropped(self) -> int:
+    def take_dropped(self) -> tuple[int, int]:
+        """Samples dropped since the last call, and how many of them ``put``'s ``stop`` event released."""
         with self._lock:
             n, self.dropped = self.dropped, 0
-        return n
+            at_stop, self.dropped_at_stop = self.dropped_at_stop, 0
+        return n, at_stop

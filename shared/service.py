@@ -205,6 +205,9 @@ class Service:
         self._max_payload = settings.max_payload_bytes
         self.seq = SeqTracker()
         self._stop = threading.Event()
+        #: what releases a delivery thread that a full inbox holds (it then drops and counts): the stop itself for
+        #: a service; the recorder releases its senders only after recording what was still in flight at its stop
+        self._release_senders = self._stop
         self._seq: dict[str, int] = {}
         self._publishers: OrderedDict[str, zenoh.Publisher] = OrderedDict()
         #: the message type whose encoding each publisher was declared with
@@ -696,9 +699,9 @@ class Service:
         payload = sample.payload
         size = len(payload)
         if size > self._max_payload:  # refused unread: only its size travels to the processing thread
-            self._queue.put((key, _Oversized(size), str(sample.encoding), time.time_ns()), 0, self._stop)
+            self._queue.put((key, _Oversized(size), str(sample.encoding), time.time_ns()), 0, self._release_senders)
             return
-        self._queue.put((key, payload.to_bytes(), str(sample.encoding), time.time_ns()), size, self._stop)
+        self._queue.put((key, payload.to_bytes(), str(sample.encoding), time.time_ns()), size, self._release_senders)
 
     def _declare_wire_key(self, key: str) -> None:
         """Declare a key this service receives samples on (the first ``max_wire_keys`` keys).
@@ -765,13 +768,18 @@ class Service:
                 self._idle()
 
     def _report_drops(self) -> None:
-        dropped = self._queue.take_dropped()
+        dropped, at_stop = self._queue.take_dropped()
         if dropped:
             self.counters.dropped += dropped
+            held = f"full for {self.settings.enqueue_block_s:g} s"
+            if at_stop == dropped:
+                held = "full when the service stopped"
+            elif at_stop:
+                held += f" ({at_stop} of them: full when the service stopped)"
             self.report(
                 f"{keys.ROOT}/**",
                 "queue_full",
-                f"{dropped} samples dropped: the inbound queue was full for {self.settings.enqueue_block_s:g} s",
+                f"{dropped} samples dropped: the inbound queue was {held}",
                 count=self.counters.dropped,
                 counts={"queue_full": self.counters.dropped},
                 level="error",

@@ -35,13 +35,14 @@ from test_scenario_files import nav_scenario
 
 from schemas import Depth, Diagnostic, Header
 from services.recorder.run_context import ANSWERED_KEY, services_metadata
-from services.recorder.service import RecorderService, collect_statuses
+from services.recorder.service import RecorderService
 from services.recorder.settings import RecorderSettings
 from shared import codec, keys, local_stack
 from shared.errors import ConnectError
 from shared.mcap_io import recording_files
 from shared.session import open_session, port_free
 from shared.settings import ZenohSettings
+from shared.status import collect_statuses
 from tools.stack import ComposeError, load_compose, plan_stack
 from tools.stack.plan import DEFAULT_ROUTER_PORT
 
@@ -349,7 +350,7 @@ def test_the_recorders_final_diagnostic_counts_reach_the_recording(router: str, 
     own = keys.diag("recorder", "diag1")
     topics = by_topic([r for r in records_of(recording_files(rec.out_dir)) if r.topic == own])
     diags = [d for d in topics[own] if isinstance(d, Diagnostic)]
-    assert [(d.reason, d.count) for d in diags] == [("bad_msgpack", 5)], diags
+    assert [(d.reason, d.count) for d in diags] == [("bad_msgpack", 5)], [(d.header, d.detail) for d in diags]
 
 
 def test_threads_left_by_an_interrupted_open_are_daemons() -> None:

@@ -49,13 +49,12 @@ Status (``fixstream/status/recorder/<instance>``) adds ``written``, ``rejected_r
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import queue
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, ClassVar, cast
 
@@ -69,8 +68,9 @@ from shared.foxglove.frames import FrameContext
 from shared.foxglove.recording import FoxgloveChannels
 from shared.mcap_io import Rejected
 from shared.service import _STOP, PLAYER_PREFIX, Output, Service, Subscription
-from shared.session import open_session, query_all
+from shared.session import open_session
 from shared.settings import ZenohSettings
+from shared.status import STATUS_ATTEMPTS, AliveTokens, collect_statuses
 
 from .run_context import RunContext, recorder_metadata, run_context, services_metadata
 from .settings import RecorderSettings
@@ -129,12 +129,16 @@ class RecorderService(Service):
         self.current_run: RunContext | None = None
         self._diag_since: Counter[str] = Counter()
         self._diag_example: dict[str, tuple[str, str]] = {}
-        self._next_diag = 0.0
+        #: when the next aggregated diagnostics are due: one interval after the start, and after each flush
+        self._next_diag = time.monotonic() + settings.diag_interval_s
         self._status_thread: threading.Thread | None = None
         self._status_replies: tuple[list[dict[str, Any]], list[str]] | None = None
         #: services whose status answered the last start marker's query (their configuration is in the file)
         self.services_seen = 0
         self._control: zenoh.Session | None = None
+        #: set once what was in flight at the stop is recorded (:meth:`_record_in_flight`): until then a delivery
+        #: thread held by a full inbox waits instead of dropping
+        self._release_senders = threading.Event()
         #: the liveliness tokens alive now (what a start marker's status query waits for)
         self.alive = AliveTokens()
         #: the Foxglove scene and map channels (FIXSTREAM_RECORDER_FOXGLOVE), converted from what is written
@@ -280,6 +284,10 @@ class RecorderService(Service):
             # only the recorder's own diagnostics still come in: its final counts (published below) are recorded
             with contextlib.suppress(Exception):
                 own = self.session.declare_subscriber(own_key, self._enqueue)
+        try:
+            self._record_in_flight(subs)
+        finally:
+            self._release_senders.set()
         for s in subs:
             with contextlib.suppress(Exception):
                 s.undeclare()
@@ -312,11 +320,27 @@ class RecorderService(Service):
                         session.close()
             log.info("%s: stopped", self.source)
 
+    def _record_in_flight(self, subs: list[Any]) -> None:
+        """After the stop, before the subscription ends: record what still arrives (samples a full inbox held back
+        in Zenoh, the estimators' last outputs as they stop) until nothing has come for ``stop_quiet_s``, at most
+        ``stop_drain_s``. A recorder stopped while behind used to drop all of it (``queue_full``)."""
+        markers = subs[1].handler if len(subs) > 1 else None
+        quiet_s = self.config.stop_quiet_s
+        now = last = time.monotonic()
+        deadline = now + self.config.stop_drain_s
+        while now < deadline and now - last < quiet_s:
+            if self._take(_BATCH, wait_s=min(0.01, quiet_s)):
+                last = time.monotonic()
+            if markers is not None:
+                self._drain_markers(markers)
+            self._housekeeping()
+            now = time.monotonic()
+
     def _await_services(self) -> None:
         """A status query still in flight (a start marker just before the stop): its answers go into the file."""
         thread = self._status_thread
         if thread is not None and thread.is_alive():
-            thread.join(timeout=_STATUS_ATTEMPTS * 2 * self.config.status_timeout_s)
+            thread.join(timeout=STATUS_ATTEMPTS * 2 * self.config.status_timeout_s)
         self._write_services()
 
     def _write_services(self) -> None:
@@ -546,68 +570,6 @@ class RecorderService(Service):
             return True
         self._write_paused_until = None  # try again (a further error pauses twice as long)
         return False
-
-
-#: status queries a start marker makes at most, until every live service has answered
-_STATUS_ATTEMPTS = 3
-
-
-class AliveTokens:
-    """The ``fixstream/alive/**`` tokens alive, as ``<service>/<instance>``, kept by a liveliness subscriber (with
-    history: the tokens declared before it too)."""
-
-    def __init__(self) -> None:
-        self._alive: set[str] = set()
-        self._lock = threading.Lock()
-
-    def watch(self, session: zenoh.Session) -> Any:
-        """Start tracking on ``session``; returns the subscriber (to undeclare)."""
-        return session.liveliness().declare_subscriber(keys.ALIVE_ALL, self._on_sample, history=True)
-
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        try:
-            who = "/".join(keys.parse_alive(str(sample.key_expr)))
-        except ValueError:
-            return
-        with self._lock:
-            if sample.kind == zenoh.SampleKind.PUT:
-                self._alive.add(who)
-            else:
-                self._alive.discard(who)
-
-    def now(self) -> set[str]:
-        with self._lock:
-            return set(self._alive)
-
-
-def collect_statuses(
-    session: zenoh.Session, timeout_s: float, alive_now: Callable[[], set[str]] | None = None
-) -> tuple[list[dict[str, Any]], list[str]]:
-    """Every live service's status and the liveliness tokens alive (``<service>/<instance>``: those ``alive_now``
-    knows, and those a liveliness query finds; a player's are not counted, it has no status queryable): the status
-    query is repeated (at most :data:`_STATUS_ATTEMPTS` times, each waiting ``timeout_s``) until every service with
-    a token has answered, so a service slow to answer under load is not missing from the recording's metadata."""
-    answered: dict[str, dict[str, Any]] = {}
-    alive: set[str] = set()
-    for _ in range(_STATUS_ATTEMPTS):
-        if alive_now is not None:
-            alive |= alive_now()
-        with contextlib.suppress(Exception):
-            for reply in session.liveliness().get(keys.ALIVE_ALL, timeout=timeout_s):
-                if reply.ok is not None:
-                    with contextlib.suppress(ValueError):
-                        alive.add("/".join(keys.parse_alive(str(reply.ok.key_expr))))
-        with contextlib.suppress(Exception):
-            for reply in query_all(session, keys.STATUS_ALL, timeout_s):
-                if reply.ok is not None:
-                    with contextlib.suppress(ValueError):
-                        doc = json.loads(reply.ok.payload.to_bytes())
-                        if isinstance(doc, dict):
-                            answered[f"{doc.get('service', '?')}/{doc.get('instance', '?')}"] = doc
-        alive = {a for a in alive if not a.startswith(PLAYER_PREFIX)}  # a player's token has no status queryable
-        if alive <= answered.keys():
-            break
-    return list(answered.values()), sorted(alive)
 
 
 def _try_recv(handler: Any) -> Any:

@@ -86,6 +86,15 @@ class RecorderSettings(ServiceSettings):
         description="the recorder's own diagnostics (rejections, seq gaps) are aggregated: one per reason per interval"
         " (the payloads themselves are recorded on fixstream/rejected/<key>), s",
     )
+    stop_drain_s: float = Field(
+        default=5.0,
+        ge=0.0,
+        le=50.0,
+        description="after SIGTERM, what still arrives (samples held back in Zenoh by a full inbox, the estimators'"
+        " last outputs) is recorded until nothing has come for stop_quiet_s, at most this long (within compose's"
+        " and fixstream up's 10 s before SIGKILL), s",
+    )
+    stop_quiet_s: float = Field(default=0.3, ge=0.0, le=10.0, description="the quiet that ends stop_drain_s early, s")
     status_timeout_s: float = Field(
         default=2.0, gt=0.0, le=60.0, description="how long a start marker's query of the services' status waits, s"
     )

@@ -38,7 +38,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--recordings", type=Path, help=f"host directory for recordings (sets ${RECORDINGS_VAR}; default ./recordings)"
     )
-    parser.add_argument("--drain", type=float, default=1.0, help="seconds between the driver's end and the stop")
+    parser.add_argument(
+        "--drain",
+        type=float,
+        default=30.0,
+        help="at most this many seconds, after the driver's end, for the stack to settle before it is stopped (every "
+        "service's inbox empty and nothing more arriving: the recording then holds the whole run); 0: stop at once",
+    )
     parser.add_argument("--profile", action="append", default=[], help="enable services of this compose profile")
     parser.add_argument(
         "--router-port",

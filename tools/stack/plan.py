@@ -60,6 +60,8 @@ class ProcessSpec:
     stop_timeout: float = 10.0
     #: a recorder's list of the MCAP files it wrote (``FIXSTREAM_RECORDER_FILES_LIST``, in a temporary directory)
     files_list: Path | None = None
+    #: a ``fixstream run`` service: it answers the status query (what the runner waits on before stopping the stack)
+    answers_status: bool = False
 
 
 @dataclass
@@ -155,11 +157,21 @@ def _mount_dirs(
     return mounts
 
 
+def _service_args(argv: list[str]) -> list[str]:
+    """The arguments after ``fixstream`` when ``argv`` runs the fixstream CLI, else []."""
+    return argv[len(FIXSTREAM_ARGV) :] if argv[: len(FIXSTREAM_ARGV)] == FIXSTREAM_ARGV else []
+
+
+def _runs_service(argv: list[str]) -> bool:
+    args = _service_args(argv)
+    return "run" in args and args.index("run") + 1 < len(args)
+
+
 def _ready_key(spec: ServiceSpec, argv: list[str], env: Mapping[str, str]) -> str | None:
     if ALIVE_LABEL in spec.labels:
         return spec.labels[ALIVE_LABEL] or None
-    args = argv[len(FIXSTREAM_ARGV) :] if argv[: len(FIXSTREAM_ARGV)] == FIXSTREAM_ARGV else []
-    if "run" in args and args.index("run") + 1 < len(args):
+    args = _service_args(argv)
+    if _runs_service(argv):
         name = args[args.index("run") + 1]
         instance = env.get(f"FIXSTREAM_{name.upper()}_INSTANCE") or env.get("FIXSTREAM_INSTANCE") or "*"
         return f"fixstream/alive/{name}/{instance}"
@@ -318,6 +330,7 @@ def plan_stack(
                 stop_signal=_signal(spec.stop_signal),
                 stop_timeout=_stop_timeout(spec, stop_timeout),
                 files_list=files_list,
+                answers_status=_runs_service(argv),
             )
         )
     client_tls: dict[str, Path] = {}

@@ -26,6 +26,8 @@ class LivelinessWatch:
         self.tls = tls or {}
         self._alive: set[str] = set()
         self._lock = threading.Lock()
+        #: services that answered a status query of :meth:`quiet_counts` (``<service>/<instance>``)
+        self._answered: set[str] = set()
         self._session: Any = None
         self._subscriber: Any = None
         self._zenoh: Any = None
@@ -58,6 +60,33 @@ class LivelinessWatch:
         with self._lock:
             alive = sorted(self._alive)
         return next((k for k in alive if ke.intersects(self._zenoh.KeyExpr(k))), None)
+
+    def quiet_counts(self, timeout_s: float, expected: set[str] | None = None) -> dict[str, int] | None:
+        """:func:`shared.status.quiet_counts` of the stack's services now, expecting an answer from ``expected``
+        (``<service>/<instance>``: the stack's own services) and from every live service that answered a status
+        query of this watch before (a token with no status queryable, a test probe's, is not waited for). None:
+        busy, an expected service silent, or no session."""
+        from shared.status import collect_statuses, quiet_counts
+
+        if self._session is None:
+            return None
+        statuses, alive = collect_statuses(self._session, timeout_s, attempts=1)
+        answered = {f"{d.get('service', '?')}/{d.get('instance', '?')}" for d in statuses}
+        waited = (set(alive) & self._answered) | (expected or set())
+        self._answered |= answered
+        return quiet_counts(statuses, waited)
+
+    def alive_key(self, key_expr: str) -> str | None:
+        """``<service>/<instance>`` of the alive token matching ``key_expr`` (see :meth:`match`), or None."""
+        from shared import keys
+
+        key = self.match(key_expr)
+        if key is None:
+            return None
+        try:
+            return "/".join(keys.parse_alive(key))
+        except ValueError:
+            return None
 
     def close(self) -> None:
         if self._session is None:

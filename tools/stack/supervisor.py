@@ -30,6 +30,9 @@ from .console import Console
 from .plan import ProcessSpec, StackPlan
 from .readiness import LivelinessWatch, port_open
 
+#: seconds between the two status rounds that must agree for the stack to count as settled (``_settle``)
+SETTLE_INTERVAL_S = 0.25
+
 
 @dataclass
 class Proc:
@@ -68,7 +71,7 @@ class Supervisor:
         plan: StackPlan,
         console: Console | None = None,
         ready_timeout: float = 60.0,
-        drain: float = 1.0,
+        drain: float = 30.0,
         poll: float = 0.05,
     ) -> None:
         self.plan = plan
@@ -269,7 +272,7 @@ class Supervisor:
         else:
             self.console.event("stopping the stack")
         if drain and self.drain > 0:
-            self._sleep(self.drain)
+            self._settle(self.drain)
         for p in reversed(self.started):
             self._reap()
             if p.returncode is not None or p.popen is None:
@@ -306,6 +309,29 @@ class Supervisor:
         assert p.popen is not None
         with contextlib.suppress(ProcessLookupError, PermissionError):
             os.killpg(p.popen.pid, sig)
+
+    def _settle(self, max_s: float) -> None:
+        """Wait, at most ``max_s``, until the stack has settled after the driver's end: every running ``fixstream
+        run`` service (and any other that answered before) answers its status query with an empty inbox and no
+        run end pending, and no service received anything between two such answers :data:`SETTLE_INTERVAL_S`
+        apart. A fixed wait instead stopped a recorder still behind the player (under load: thousands of samples
+        held back in Zenoh and dropped at the stop). Without a liveliness watch (no router of ours) it waits
+        ``min(max_s, 1)`` s."""
+        if self.watch is None:
+            self._sleep(min(max_s, 1.0))
+            return
+        end = time.monotonic() + max_s
+        previous: dict[str, int] | None = None
+        while not self.signals and time.monotonic() < end:
+            own = {p.spec.ready_key for p in self.started if p.spec.answers_status and p.returncode is None}
+            expected = {who for k in own if k and (who := self.watch.alive_key(k))}
+            counts = self.watch.quiet_counts(min(0.5, max(0.1, end - time.monotonic())), expected)
+            if counts is not None and counts == previous:
+                return
+            previous = counts
+            self._sleep(min(SETTLE_INTERVAL_S, max(0.0, end - time.monotonic())))
+        if not self.signals:
+            self.console.event(f"the stack had not settled {max_s:g} s after the driver's end; stopping it anyway")
 
     def _sleep(self, seconds: float) -> None:
         end = time.monotonic() + seconds
