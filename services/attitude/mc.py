@@ -21,13 +21,15 @@ Parameters (``estimators[].params`` of the scenario, :class:`Params`):
 * ``thresholds_deg``, ``summary_scans``, ``consistency_scans``, ``phase_first_scan``: what :func:`aggregate`
   reports; ``phases`` (per target and pooled over the targets): the flight-phase statistics of
   :func:`~services.attitude.metrics.phase_table` (turns, other manoeuvres, straight legs, steady straight legs:
-  RMS per angle, NEES against its chi-square band, VALID consistency), from the truth's commanded phase.
+  RMS per angle, NEES against its chi-square band, VALID consistency), from the truth's commanded phase;
+* ``stream`` (default ``realtime``): ``smoothed`` scores the fixed-lag smoothed estimates instead (flag
+  ``SMOOTHED``; needs ``config.smoother_lag_scans`` > 0).
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -70,12 +72,19 @@ class Params(BaseModel):
     summary_scans: list[int] = Field(default_factory=lambda: [3, 11, 21, 41, 61, 100], max_length=1000)
     consistency_scans: list[int] = Field(default_factory=lambda: [21, 100], min_length=2, max_length=2)
     phase_first_scan: int = Field(default=20, ge=1, description="flight-phase statistics from this scan on")
+    stream: Literal["realtime", "smoothed"] = Field(
+        default="realtime",
+        description="the estimates scored: the real-time ones, or the fixed-lag smoothed ones (needs config"
+        " smoother_lag_scans > 0); recorded in the metrics only when not the default",
+    )
 
     @model_validator(mode="after")
     def _check(self) -> Params:
         if self.site_id is not None:
             keys.chunk(self.site_id)
         check_config_overrides(self.config, "site_id", "the site as params.site_id", lambda: self.core_config("check"))
+        if self.stream == "smoothed" and not self.core_config("check").smoother_lag_scans:
+            raise ValueError("stream 'smoothed' needs config.smoother_lag_scans > 0 (no smoothed estimate otherwise)")
         if any(s < 1 for s in self.summary_scans) or not 1 <= self.consistency_scans[0] <= self.consistency_scans[1]:
             raise ValueError("scan numbers start at 1; consistency_scans is [first, last]")
         return self
@@ -123,9 +132,10 @@ def run_metrics(
     """Metrics of one run from what the site published (its ``AttitudeEstimate`` events; COASTING ones are not
     scored) against the targets' truth in ``events``: every target with a plot on the site's radar keys, scored at
     each of its truth samples. A pure function of the two, so a recording gives the figures of :func:`run_core`.
-    ``smoothed``: score the fixed-lag smoothed estimates (flag SMOOTHED, ``smoother_lag_scans``) instead of the
-    real-time ones."""
+    ``smoothed`` (or ``params.stream: smoothed``): score the fixed-lag smoothed estimates (flag SMOOTHED,
+    ``smoother_lag_scans``) instead of the real-time ones."""
     p = Params.model_validate(params, strict=True)
+    smoothed = smoothed or p.stream == "smoothed"
     site_id, site_pos = _site(p, scenario)
     config = p.core_config(site_id)
     prefix = f"{keys.ROOT}/sensor/{site_id}/radar/"
@@ -159,7 +169,8 @@ def run_metrics(
         targets[tid] = recorder.rec
     return {
         "site_id": site_id,
-        "params": p.model_dump(mode="json"),
+        # a field added later is recorded only when set, so that the metrics of every earlier scenario stay as they were
+        "params": p.model_dump(mode="json", exclude={"stream"} if p.stream == "realtime" else None),
         "config": config.model_dump(mode="json"),
         "targets": targets,
     }
