@@ -297,8 +297,13 @@ def compose_up(
     docker_host: str,
     timeout_s: float = 600.0,
     services: Sequence[str] = (),
+    exit_codes: dict[str, int | None] | None = None,
 ) -> subprocess.CompletedProcess[str]:
-    """``docker-compose up --no-build --exit-code-from player`` on podman, then ``down`` whatever happened."""
+    """``docker-compose up --no-build --exit-code-from player`` on podman, then ``down`` whatever happened.
+
+    ``exit_codes``: filled, before the ``down``, with the exit code of each service it names (None: no container or
+    no code). ``--exit-code-from`` returns the player's code only: a recorder that exited 1 (a write error) is
+    seen here."""
     full_env = {**env, "DOCKER_HOST": docker_host}
     base = ["docker-compose", "-p", project, *(a for f in files for a in ("-f", str(f)))]
     try:
@@ -310,14 +315,27 @@ def compose_up(
                 cwd=REPO,
             )
     finally:
+        for name in exit_codes or {}:
+            assert exit_codes is not None
+            exit_codes[name] = _exit_code(base, name, full_env)
         run([*base, "down", "--remove-orphans", "--timeout", "5"], timeout=300, env=full_env, cwd=REPO)
+
+
+def _exit_code(base: Sequence[str], service: str, env: Mapping[str, str]) -> int | None:
+    """The exit code of ``service``'s (first) container of the compose project ``base`` names, or None."""
+    ids = run([*base, "ps", "-q", service], timeout=120, env=env, cwd=REPO).stdout.split()
+    if not ids:
+        return None
+    code = run(["podman", "inspect", "--format", "{{.State.ExitCode}}", ids[0]], timeout=60).stdout.strip()
+    return int(code) if code.lstrip("-").isdigit() else None
 
 
 def demo(recordings: Path) -> int:
     """The demo stack as containers on podman (``compose.yaml`` + the router override): the Docker API socket, the
     healthcheck driver and a recordings directory the containers can write, done here so that a user need not.
     The services run as the calling user (``FIXSTREAM_UID``/``FIXSTREAM_GID``, unless set), so the MCAP file
-    belongs to whoever ran the demo. Returns compose's exit code (the player's)."""
+    belongs to whoever ran the demo. Returns compose's exit code (the player's), or 1 when the player's was 0 but no
+    recording appeared or the recorder exited non-zero."""
     recordings.mkdir(parents=True, exist_ok=True)
     env = {
         **os.environ,
@@ -327,12 +345,16 @@ def demo(recordings: Path) -> int:
     }
     before = set(recordings.glob("*.mcap"))
     files = (REPO / "compose.yaml", REPO / "compose.fixstream-router.yaml")
+    codes: dict[str, int | None] = {"recorder": None}
     with docker_api() as host:
-        proc = compose_up(f"fixstream-demo-{os.getpid()}", files, env, host, timeout_s=1800.0)
+        proc = compose_up(f"fixstream-demo-{os.getpid()}", files, env, host, timeout_s=1800.0, exit_codes=codes)
     print(proc.stdout[-4000:], end="")
     new = sorted(set(recordings.glob("*.mcap")) - before)
     if proc.returncode == 0 and not new:
         print(f"demo: compose exited 0 but no recording appeared in {recordings}", file=sys.stderr)
+        return 1
+    if proc.returncode == 0 and codes["recorder"] != 0:  # 1: a write failed, the recording is incomplete
+        print(f"demo: the player exited 0 but the recorder exited {codes['recorder']}", file=sys.stderr)
         return 1
     for path in new:
         print(f"demo: recording {path}")

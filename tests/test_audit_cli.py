@@ -102,6 +102,25 @@ def test_record_refuses_an_out_dir_it_cannot_create(tmp_path: Path, capsys: pyte
     assert str(a_file / "sub") in err and "cannot create" in err
 
 
+@pytest.mark.parametrize(
+    ("text", "says"),
+    [
+        ("a: [1,\n b: }\n", "line 2, column 5: expected the node content"),
+        ('a: "\x01"\n', "unacceptable character #x0001"),
+    ],
+)
+def test_play_and_mc_name_a_yaml_error_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str, says: str
+) -> None:
+    """A scenario file that is not YAML: one line with the place of the error (yaml's own message is several
+    lines with an excerpt of the file), exit status 2, for play as for mc."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(text)
+    for argv in (["play", str(bad), "--rate", "0"], ["mc", str(bad), "--runs", "1", "--out", str(tmp_path / "m.json")]):
+        err = _one_line_usage(capsys, _exit_code(argv))
+        assert says in err and str(bad) in err, err
+
+
 def test_mc_checks_out_before_the_runs(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:

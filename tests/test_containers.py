@@ -260,12 +260,14 @@ def run_in_containers(
     watcher.start()
     project = f"fixstream-test-{os.getpid()}-{tmp_path.name[-12:].lower()}"
     project = re.sub(r"[^a-z0-9_-]", "", project)
+    codes: dict[str, int | None] = {"recorder": None}  # --exit-code-from gives the player's code only
     try:
         with docker_api() as host:
-            proc = compose_up(project, (COMPOSE, ROUTER_OVERRIDE, *extra_files), full_env, host)
+            proc = compose_up(project, (COMPOSE, ROUTER_OVERRIDE, *extra_files), full_env, host, exit_codes=codes)
     finally:
         done.set()
         watcher.join(timeout=5)
+    assert proc.returncode != 0 or codes["recorder"] == 0, f"the recorder exited {codes['recorder']}"
     return proc, recordings, seen_port.is_set()
 
 

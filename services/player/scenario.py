@@ -224,8 +224,17 @@ def load_scenario(path: str | Path) -> Scenario:
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise ScenarioError(f"{p}: invalid YAML: {exc}") from None
+        raise ScenarioError(f"{p}: invalid YAML: {_yaml_problem(exc)}") from None
     return parse_scenario(data, str(p))
+
+
+def _yaml_problem(exc: yaml.YAMLError) -> str:
+    """One line for a YAML error: what went wrong and where (line and column from 1), not yaml's multi-line
+    excerpt of the file."""
+    if isinstance(exc, yaml.MarkedYAMLError) and exc.problem_mark is not None:
+        mark = exc.problem_mark
+        return f"line {mark.line + 1}, column {mark.column + 1}: {exc.problem or exc.context or 'syntax error'}"
+    return " ".join(str(exc).split())
 
 
 def default_dir() -> Path:
