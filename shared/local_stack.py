@@ -11,10 +11,12 @@ The state directory is ``$FIXSTREAM_STATE_DIR``, else ``$XDG_RUNTIME_DIR/fixstre
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import os
 import tempfile
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,6 +42,21 @@ def state_dir() -> Path:
     if runtime and Path(runtime).is_dir():
         return Path(runtime) / "fixstream"
     return Path(tempfile.gettempdir()) / f"fixstream-{os.getuid()}"
+
+
+@contextlib.contextmanager
+def exclusive() -> Iterator[None]:
+    """Hold this user's stack lock (``<state dir>/up.lock``, an exclusive ``flock``): ``fixstream up`` chooses its
+    router port and announces it under it, so that two stacks started at once never both choose the free 7447
+    (the second then sees the first's announcement). Released when the block ends, or when the process dies."""
+    d = state_dir()
+    d.mkdir(parents=True, exist_ok=True, mode=0o700)
+    with (d / "up.lock").open("a") as f:
+        fcntl.flock(f.fileno(), fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f.fileno(), fcntl.LOCK_UN)
 
 
 def announce(endpoint: str, compose_file: str, tls: dict[str, Path] | None = None) -> Path:

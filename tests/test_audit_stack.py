@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -410,3 +411,36 @@ def test_the_services_are_asked_before_the_slow_scenario_look_up(
     rec.on_sample(keys.scenario("nowhere"), codec.encode(marker), codec.encoding_of(ScenarioMarker))
     assert order == ["asked"]
     rec.on_stop()
+
+
+def test_up_chooses_its_port_under_the_stack_lock(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two stacks started at once: each chooses its router port and announces it while holding this user's stack
+    lock, so the second sees the first's announcement. Here the test is the first stack: while it holds the lock,
+    ``fixstream up`` chooses nothing; the test announces 7447 and lets go; ``up`` then takes another port and runs.
+    (Without the lock both found 7447 free within about 100 ms, and the second router could not bind.)"""
+    state = tmp_path / "state"
+    monkeypatch.setenv("FIXSTREAM_STATE_DIR", str(state))
+    (tmp_path / "compose.yaml").write_text(UP_COMPOSE)
+    (tmp_path / "scen").mkdir()
+    (tmp_path / "scen" / "s.yaml").write_text(yaml.safe_dump(nav_scenario("s", duration_s=2.0), sort_keys=False))
+    lines: list[str] = []
+    cmd = fixstream_cmd("up", "--no-color", "--drain", "0.3", "--recordings", str(tmp_path / "rec"))
+    with local_stack.exclusive():
+        proc = subprocess.Popen(cmd, cwd=tmp_path, env=os.environ.copy(), stdout=subprocess.PIPE, text=True)
+        assert proc.stdout is not None
+        reader = threading.Thread(target=lambda: lines.extend(proc.stdout or ()), daemon=True)
+        reader.start()
+        time.sleep(3.0)  # long enough for up to start and plan (about 1 s here)
+        assert proc.poll() is None and not any("router on" in line for line in lines), lines
+        announcement = local_stack.announce(f"tcp/127.0.0.1:{DEFAULT_ROUTER_PORT}", "first/compose.yaml")
+    try:
+        rc = proc.wait(timeout=120)
+        reader.join(timeout=10)
+    finally:
+        local_stack.withdraw(announcement)
+        if proc.poll() is None:
+            proc.kill()
+    out = "".join(lines)
+    assert rc == 0, out[-3000:]
+    port = int(re.search(r"router on tcp/127\.0\.0\.1:(\d+)", out).group(1))  # type: ignore[union-attr]
+    assert port != DEFAULT_ROUTER_PORT, out[-3000:]

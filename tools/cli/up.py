@@ -80,44 +80,49 @@ def run(args: argparse.Namespace) -> int:
     if args.recordings is not None:
         overrides[RECORDINGS_VAR] = str(args.recordings.expanduser().resolve())
     profiles = [*args.profile, *filter(None, os.environ.get("COMPOSE_PROFILES", "").split(","))]
-    try:
-        path = args.file or find_compose_file(Path.cwd())
-        project = load_compose(path, env_file=args.env_file, overrides=overrides)
-        for warning in project.warnings:
-            console.event(f"warning: {warning}")
-        names = project.select(args.services, profiles)
-        pki = None
-        if args.secure:
-            from ..stack.pki import make_pki
+    # the port is chosen and announced under a lock that every fixstream up of this user takes: two started at once
+    # would otherwise both find 7447 free before either router listens (the second router then fails to bind)
+    with local_stack.exclusive():
+        try:
+            path = args.file or find_compose_file(Path.cwd())
+            project = load_compose(path, env_file=args.env_file, overrides=overrides)
+            for warning in project.warnings:
+                console.event(f"warning: {warning}")
+            names = project.select(args.services, profiles)
+            pki = None
+            if args.secure:
+                from ..stack.pki import make_pki
 
-            pki = make_pki(Path(tempfile.mkdtemp(prefix="fixstream-pki-")))
-        plan = plan_stack(
-            project,
-            names,
-            stop_timeout=args.timeout,
-            create_dirs=not args.dry_run,
-            router_port=args.router_port,
-            secure=pki,
-        )
-        if pki is not None:
-            plan.temp_dirs.append(pki.directory)
-    except (ComposeError, OSError) as exc:
-        console.event(f"error: {exc}")
-        if not (sys.stdout.isatty() and sys.stderr.isatty()):  # the one line on stderr too (unless one terminal)
-            print(f"fixstream up: {exc}", file=sys.stderr)
-        return 2
-    console.event(f"{project.path}: {', '.join(names)}")
-    if args.dry_run:
-        for proc in plan.processes:
-            changed = {k: v for k, v in proc.env.items() if os.environ.get(k) != v}
-            console.event(f"{proc.service}: cd {proc.cwd} && {' '.join(proc.argv)}")
-            for key, value in sorted(changed.items()):
-                console.event(f"{proc.service}:   {key}={value}")
-        return 0
-    announcement = None
-    if plan.endpoint is not None:
-        announcement = local_stack.announce(plan.endpoint, str(project.path), plan.client_tls)
-        console.event(f"router on {plan.endpoint}; clients (fixstream echo, status, record, ...) attach with no flags")
+                pki = make_pki(Path(tempfile.mkdtemp(prefix="fixstream-pki-")))
+            plan = plan_stack(
+                project,
+                names,
+                stop_timeout=args.timeout,
+                create_dirs=not args.dry_run,
+                router_port=args.router_port,
+                secure=pki,
+            )
+            if pki is not None:
+                plan.temp_dirs.append(pki.directory)
+        except (ComposeError, OSError) as exc:
+            console.event(f"error: {exc}")
+            if not (sys.stdout.isatty() and sys.stderr.isatty()):  # the one line on stderr too (unless one terminal)
+                print(f"fixstream up: {exc}", file=sys.stderr)
+            return 2
+        console.event(f"{project.path}: {', '.join(names)}")
+        if args.dry_run:
+            for proc in plan.processes:
+                changed = {k: v for k, v in proc.env.items() if os.environ.get(k) != v}
+                console.event(f"{proc.service}: cd {proc.cwd} && {' '.join(proc.argv)}")
+                for key, value in sorted(changed.items()):
+                    console.event(f"{proc.service}:   {key}={value}")
+            return 0
+        announcement = None
+        if plan.endpoint is not None:
+            announcement = local_stack.announce(plan.endpoint, str(project.path), plan.client_tls)
+            console.event(
+                f"router on {plan.endpoint}; clients (fixstream echo, status, record, ...) attach with no flags"
+            )
     try:
         result = Supervisor(plan, console, ready_timeout=args.ready_timeout, drain=args.drain).run()
     finally:
