@@ -30,6 +30,7 @@ import pytest
 import yaml
 import zenoh
 from conftest import REPO, fixstream_cmd
+from mcap.reader import make_reader
 from recorder_support import by_topic, recorder, records_of, restamp
 from samples import EXAMPLES
 from test_scenario_files import nav_scenario
@@ -409,8 +410,49 @@ def test_the_services_are_asked_before_the_slow_scenario_look_up(
         header=Header(stamp_ns=1, source="player/default", seq=0), event="start", scenario="nowhere", seed=1
     )
     rec.on_sample(keys.scenario("nowhere"), codec.encode(marker), codec.encoding_of(ScenarioMarker))
+    rec._open_looked_up(wait=True)  # the look-up runs on a worker thread (next test)
     assert order == ["asked"]
     rec.on_stop()
+
+
+def test_a_slow_scenario_look_up_does_not_hold_the_recording(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A start marker's scenario look-up takes seconds on a first run (the simulators' imports: 1.7 s for the demo
+    on an idle machine, 7 s with two stacks at once), during which the recorder used to record nothing while Zenoh
+    held the whole stack back. It runs on a worker thread now: the samples after the marker are written while it
+    is still blocked, and its metadata and attachments reach the file once it is done."""
+    import services.recorder.service as recorder_module
+    from schemas import ScenarioMarker
+
+    rec = RecorderService(RecorderSettings(out_dir=tmp_path, instance="slow", scenarios_dir=REPO / "scenarios"))
+    rec._control = cast(Any, object())  # a session stand-in: the status query's calls fail and are suppressed
+    release = threading.Event()
+    original = recorder_module.run_context
+
+    def blocked_lookup(*args: Any, **kwargs: Any) -> Any:
+        assert release.wait(20.0)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(recorder_module, "run_context", blocked_lookup)
+    marker = ScenarioMarker(
+        header=Header(stamp_ns=1, source="player/default", seq=0), event="start", scenario="demo", seed=1
+    )
+    t0 = time.monotonic()
+    rec.on_sample(keys.scenario("demo"), codec.encode(marker), codec.encoding_of(ScenarioMarker))
+    depth, encoding = EXAMPLES["Depth"], codec.encoding_of(Depth)
+    for i in range(100):
+        rec.on_sample("fixstream/sensor/a/depth/d", codec.encode(restamp(depth, i, "player/default")), encoding)
+    rec._housekeeping()
+    assert time.monotonic() - t0 < 5.0 and rec.counters.accepted == 101 and rec.current_run is None
+    release.set()
+    rec._open_looked_up(wait=True)
+    assert rec.current_run is not None and rec.current_run.scenario_path == REPO / "scenarios" / "demo.yaml"
+    rec.on_stop()
+    (path,) = recording_files(tmp_path)
+    with path.open("rb") as f:
+        reader = make_reader(f)
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+        attachments = [a.name for a in reader.iter_attachments()]
+    assert metadata["fixstream.run"]["scenario"] == "demo" and "scenario/demo.yaml" in attachments
 
 
 def test_up_chooses_its_port_under_the_stack_lock(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

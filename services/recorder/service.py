@@ -53,8 +53,9 @@ import logging
 import queue
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Iterable
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, ClassVar, cast
 
@@ -80,6 +81,8 @@ log = logging.getLogger("fixstream.recorder")
 
 #: samples taken from the FIFO before the writer's flush and rotation are checked again
 _BATCH = 4096
+#: start markers whose scenario look-up may be in flight at once (a flood of markers waits for the oldest)
+_MAX_LOOK_UPS = 8
 #: (key, source) pairs whose next seq is remembered on the fast path, at most
 _MAX_PAIRS = 65_536
 _SCENARIO_KEYS = f"{keys.ROOT}/scenario/**"
@@ -132,6 +135,11 @@ class RecorderService(Service):
         #: when the next aggregated diagnostics are due: one interval after the start, and after each flush
         self._next_diag = time.monotonic() + settings.diag_interval_s
         self._status_thread: threading.Thread | None = None
+        #: start markers' scenario look-ups, in marker order, on a worker thread: a first look-up imports the simulators
+        #: and takes seconds (1.7 s for the demo on an idle machine, 7 s with two stacks at once), which the loop
+        #: spent not recording while Zenoh held the stack back; the loop writes each result once it is done
+        self._look_ups: deque[Future[RunContext]] = deque()
+        self._look_up_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="recorder-scenario")
         self._status_replies: tuple[list[dict[str, Any]], list[str]] | None = None
         #: services whose status answered the last start marker's query (their configuration is in the file)
         self.services_seen = 0
@@ -306,6 +314,8 @@ class RecorderService(Service):
             while self._take(_BATCH):
                 pass
             self._await_services()
+            self._open_looked_up(wait=True)
+            self._look_up_pool.shutdown()
             self.on_stop()
         finally:
             for d in reversed(declared):
@@ -367,6 +377,7 @@ class RecorderService(Service):
         if self.writer.failed is not None:
             self._write_failed(self.config.key_expr, self.writer.failed)
         self._write_services()
+        self._open_looked_up()
         now = time.monotonic()
         if final or now >= self._next_diag:
             self._next_diag = now + self.config.diag_interval_s
@@ -490,15 +501,36 @@ class RecorderService(Service):
         # idle machine), by which time a --rate 0 run may be over and its services stopped (it missed 5 of 9)
         self._ask_services()
         directories = [self.config.scenarios_dir or _default_scenarios_dir()]
-        run = run_context(marker, self.runs[marker.scenario], directories, self.config.max_attachment_bytes)
+        args = (marker, self.runs[marker.scenario], directories, self.config.max_attachment_bytes)
+        if self.foxglove is not None:  # its converter must know the run's frames before the run's next message
+            self._open_run(run_context(*args))
+            return
+        while len(self._look_ups) >= _MAX_LOOK_UPS:  # a flood of markers waits for the oldest: memory stays bounded
+            self._open_run(self._look_ups.popleft())
+        self._look_ups.append(self._look_up_pool.submit(run_context, *args))
+
+    def _open_run(self, run: RunContext | Future[RunContext]) -> None:
+        """A start marker's run (or the look-up that finds it, waited for): its metadata and attachments in the
+        file, and its frames for the Foxglove channels."""
+        if isinstance(run, Future):
+            try:
+                run = run.result()
+            except Exception:  # a look-up that fails leaves the run without attachments, never the recording
+                log.exception("%s: the scenario look-up of a start marker failed", self.source)
+                return
         self.current_run = run
         self.writer.put_metadata("fixstream.run", run.metadata())
         for name, media_type, data in run.attachments:
-            self.writer.put_attachment(name, media_type, data, marker.header.stamp_ns)
+            self.writer.put_attachment(name, media_type, data, run.stamp_ns)
         if self.foxglove is not None:
             self.foxglove.converter = (
                 Converter.for_scenario(run.loaded) if run.loaded is not None else Converter(FrameContext())
             )
+
+    def _open_looked_up(self, wait: bool = False) -> None:
+        """Write the runs whose look-up is done, in marker order (``wait``: all of them, waiting)."""
+        while self._look_ups and (wait or self._look_ups[0].done()):
+            self._open_run(self._look_ups.popleft())
 
     def _ask_services(self) -> None:
         """Query every service's status in the background; the loop writes the answers as metadata."""
