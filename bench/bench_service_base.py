@@ -31,10 +31,12 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import timeit
 from collections.abc import Iterable
+from pathlib import Path
 from typing import Any, ClassVar, cast
 
 import msgpack
@@ -70,12 +72,16 @@ class EchoService(Service):
         self.t1: tuple[float, float] | None = None
         self.threads0: dict[str, float] = {}
         self.threads1: dict[str, float] = {}
+        #: the deepest the inbox was, sampled every 1,000 messages over the measured span
+        self.max_depth = 0
 
     def subscriptions(self) -> list[Subscription]:
         return [Subscription("fixstream/sensor/bench/depth/*", self.on_depth, accepts=(Depth,))]
 
     def on_depth(self, key: str, msg: Message) -> Iterable[Output]:
         self.n += 1
+        if self.n % 1000 == 0 and self.n > WARM:
+            self.max_depth = max(self.max_depth, self._queue.qsize())
         if self.n == WARM:
             self.threads0 = thread_cpu()
             self.t0 = (time.process_time(), time.perf_counter())
@@ -136,6 +142,36 @@ class FifoEchoService(EchoService):
         self.session.close()
 
 
+class DirectEchoService(EchoService):
+    """The shipped path with its callback run on Zenoh's network thread (``Callback(indirect=False)``): no Python
+    thread per subscription between Zenoh and the inbox (experiment)."""
+
+    def _declare(self) -> None:
+        assert self.session is not None
+        self._subs = self.subscriptions()
+        cb = zenoh.handlers.Callback(self._enqueue, indirect=False)
+        self._declared.append(self.session.declare_subscriber(self._subs[0].key_expr, cb))
+
+
+class FifoDrainEchoService(FifoEchoService):
+    """:class:`FifoEchoService` taking what has queued with ``try_recv`` (no GIL release per sample) and blocking in
+    ``recv`` only when the FIFO is empty (a variant)."""
+
+    def _loop(self) -> None:
+        fifo, process, wire_keys = self._fifo, self.process, self._wire_keys
+        try_recv, time_ns = fifo.try_recv, time.time_ns
+        while not self._stop.is_set():
+            s = fifo.recv()
+            while s is not None:
+                key = str(s.key_expr)
+                if key not in wire_keys:
+                    self._declare_wire_key(key)
+                process(key, s.payload.to_bytes(), str(s.encoding), time_ns())
+                if self._stop.is_set():
+                    return
+                s = try_recv()
+
+
 class _NullPublisher:
     def put(self, payload: bytes, encoding: Any = None) -> None:
         pass
@@ -156,17 +192,54 @@ def _payload(seq: int) -> bytes:
 
 
 # ----- the consumer processes --------------------------------------------------------------------------------------
-def serve(kind: str, endpoint: str) -> None:
-    """A consumer process: ``bare``, ``relay`` or ``service``; prints ``ready``, then ``cpu_s wall_s`` of the measured
-    span."""
+#: Zenoh configuration variants of the consumer's session (``<kind>+<variant>``): JSON5 paths and values
+TRANSPORT_VARIANTS: dict[str, dict[str, Any]] = {
+    "qos_off": {"transport/unicast/qos/enabled": False},
+    "batch_5ms": {"transport/link/tx/queue/batching/time_limit": 5},
+    "nobatch": {"transport/link/tx/queue/batching/enabled": False},
+    "rxbuf_1m": {"transport/link/rx/buffer_size": 1 << 20},
+    "queue_16": {"transport/link/tx/queue/size/data": 16},
+    "lowlat": {"transport/unicast/qos/enabled": False, "transport/unicast/lowlatency": True},
+}
+#: environment variants of the consumer process (``<kind>+<variant>``): Zenoh's runtime threads, the inbox's bound
+ENV_VARIANTS: dict[str, dict[str, str]] = {
+    "rx1": {"ZENOH_RUNTIME": "(rx: (worker_threads: 1))"},
+    "rx1_tx_app": {"ZENOH_RUNTIME": "(rx: (worker_threads: 1), tx: (handover: app))"},
+    "q1k": {"FIXSTREAM_QUEUE_SIZE": "1000"},
+    "q10k": {"FIXSTREAM_QUEUE_SIZE": "10000"},
+}
+
+
+def _consumer_settings(variant: str, endpoint: str) -> ZenohSettings:
+    """The consumer's Zenoh settings for a transport variant (its config written to a temporary JSON5 file)."""
     zs = ZenohSettings(mode="client", connect=[endpoint])
+    if variant in TRANSPORT_VARIANTS:
+        cfg: dict[str, Any] = {}
+        for path, value in TRANSPORT_VARIANTS[variant].items():
+            *parents, leaf = path.split("/")
+            node = cfg
+            for p in parents:
+                node = node.setdefault(p, {})
+            node[leaf] = value
+        fd, name = tempfile.mkstemp(suffix=".json5")
+        with os.fdopen(fd, "w") as f:
+            json.dump(cfg, f)
+        zs = ZenohSettings(mode="client", connect=[endpoint], config_file=Path(name))
+    return zs
+
+
+def serve(kind: str, endpoint: str) -> None:
+    """A consumer process: ``bare``, ``relay`` or ``service`` (``+variant``: a transport variant); prints ``ready``,
+    then ``cpu_s wall_s`` of the measured span."""
+    kind, _, variant = kind.partition("+")
+    zs = _consumer_settings(variant, endpoint)
     key_expr = "fixstream/sensor/bench/depth/*" if kind == "bare_wildcard" else IN_KEY
     if kind in SERVICES:
         svc = SERVICES[kind](ServiceSettings(instance="b0"), zs)
         threading.Timer(1.0, lambda: print("ready", flush=True)).start()  # run() declares within the first second
         svc.run()
         assert svc.t0 is not None and svc.t1 is not None
-        threads = {g: svc.threads1[g] - svc.threads0[g] for g in svc.threads0}
+        threads = {g: svc.threads1[g] - svc.threads0[g] for g in svc.threads0} | {"max_depth": svc.max_depth}
         print(f"{svc.t1[0] - svc.t0[0]} {svc.t1[1] - svc.t0[1]} {json.dumps(threads)}", flush=True)
         return
     session = open_session(zs)
@@ -199,6 +272,8 @@ SERVICES: dict[str, type[EchoService]] = {
     "service": EchoService,
     "service_inline": InlineEchoService,
     "service_fifo": FifoEchoService,
+    "service_direct": DirectEchoService,
+    "service_fifo_drain": FifoDrainEchoService,
 }
 
 
@@ -219,7 +294,7 @@ def publish(endpoint: str) -> None:
     session.close()
 
 
-def _spawn(fn: str, *args: str) -> subprocess.Popen[str]:
+def _spawn(fn: str, *args: str, env: dict[str, str] | None = None) -> subprocess.Popen[str]:
     code = f"import sys; from bench.bench_service_base import {fn}; {fn}(*sys.argv[1:])"
     return subprocess.Popen(
         [sys.executable, "-c", code, *args],
@@ -227,7 +302,7 @@ def _spawn(fn: str, *args: str) -> subprocess.Popen[str]:
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         text=True,
-        env={**os.environ, "FIXSTREAM_LOG_LEVEL": "WARNING"},
+        env={**os.environ, "FIXSTREAM_LOG_LEVEL": "WARNING", **(env or {})},
     )
 
 
@@ -237,7 +312,8 @@ def run_consumer(kind: str, endpoint: str) -> dict[str, Any]:
     got = [0]
     session = open_session(ZenohSettings(mode="client", connect=[endpoint]))
     counter = session.declare_subscriber(OUT_KEY, lambda s: got.__setitem__(0, got[0] + 1))
-    consumer = _spawn("serve", kind, endpoint)
+    variant = kind.partition("+")[2]
+    consumer = _spawn("serve", kind, endpoint, env=ENV_VARIANTS.get(variant, {}))
     publisher = _spawn("publish", endpoint)
     try:
         assert consumer.stdout is not None and publisher.stdout is not None and publisher.stdin is not None
@@ -263,11 +339,13 @@ def run_consumer(kind: str, endpoint: str) -> dict[str, Any]:
         counter.undeclare()
         session.close()
     span = N - WARM
+    max_depth = int(threads.pop("max_depth", 0))
     return {
         "cpu_us_per_msg": cpu_s / span * 1e6,
         "msg_per_s": span / wall_s,
         "outputs_received": got[0] if not kind.startswith("bare") else 0,
         "threads_us_per_msg": {g: t / span * 1e6 for g, t in threads.items()},
+        "max_inbox_depth": max_depth,
     }
 
 

@@ -474,7 +474,8 @@ class Service:
         handlers read it as ``self.rx_time_ns``.
         """
         self.rx_time_ns = rx_time_ns if rx_time_ns is not None else time.time_ns()
-        self.counters.received += 1
+        counters = self.counters
+        counters.received += 1
         if len(payload) > self._max_payload:
             self.reject(key, "payload_too_large", f"{len(payload)} bytes > max_payload_bytes {self._max_payload}")
             return
@@ -492,8 +493,9 @@ class Service:
                 return
         outputs = self._dispatch(key, payload, encoding, sub, scenario, obj, unpack_error)
         if outputs is not None:
-            self.counters.accepted += 1
-            self._publish_all(outputs)
+            counters.accepted += 1
+            if outputs:  # most samples of most services: nothing to publish (already truth-tested: `or ()`)
+                self._publish_all(outputs)
         if counted and self._pending_end is not None:
             self._end_scenario(force=False)
 
