@@ -10,10 +10,15 @@ consumer process at a time takes them, and the benchmark process counts what the
   :meth:`~shared.service.Service._declare_wire_key`);
 * ``bare relay``: the callback counts and puts the payload back on an output key (the transport's cost both ways);
 * ``service base``: a :class:`~shared.service.Service` whose typed subscription takes ``Depth`` and whose core does
-  nothing: its handler returns the message as its output. Every message goes receive -> inbox -> unpack -> seq
-  and stamp checks -> validate -> dispatch -> stamp source/seq -> encode -> put, as in every fixstream service;
-* ``service base through a FifoChannel``: the same, receiving through Zenoh's FIFO handler (batching without a
-  Python callback per sample; a variant, see :class:`FifoEchoService`).
+  nothing: its handler returns the message as its output. Every message goes receive -> Zenoh's FIFO -> the
+  subscription's delivery thread -> inbox -> unpack -> seq and stamp checks -> validate -> dispatch -> stamp
+  source/seq -> encode -> put, as in every fixstream service;
+* variants of its receiving end (not shipped): a Python callback per sample into the inbox (what the base did before
+  its delivery threads, :class:`CallbackEchoService`), that callback on Zenoh's network thread
+  (:class:`DirectEchoService`), processing in the callback (:class:`InlineEchoService`), and pulling from the FIFO
+  in the service's own thread with no inbox (:class:`FifoEchoService`, :class:`FifoDrainEchoService`);
+* ``service+<variant>``: the service base with a Zenoh transport setting (:data:`TRANSPORT_VARIANTS`) or an
+  environment variable (:data:`ENV_VARIANTS`) of its own process.
 
 Each consumer measures its own CPU time (``time.process_time``: every thread of the process, Zenoh's included) and
 wall time from its ``WARM``-th message to its last; CPU per message is the figure (the machine is shared, wall time
@@ -143,8 +148,8 @@ class FifoEchoService(EchoService):
 
 
 class DirectEchoService(EchoService):
-    """The shipped path with its callback run on Zenoh's network thread (``Callback(indirect=False)``): no Python
-    thread per subscription between Zenoh and the inbox (experiment)."""
+    """:class:`CallbackEchoService` with its callback run on Zenoh's network thread (``Callback(indirect=False)``):
+    no Python thread between Zenoh and the inbox, but Zenoh's thread takes the GIL for every sample (a variant)."""
 
     def _declare(self) -> None:
         assert self.session is not None
@@ -172,6 +177,16 @@ class FifoDrainEchoService(FifoEchoService):
                 s = try_recv()
 
 
+class CallbackEchoService(EchoService):
+    """The same service receiving through a Python callback per sample on the thread Zenoh runs it on (its
+    "indirect" thread), which puts into the inbox: what the base shipped before the delivery threads (a variant)."""
+
+    def _declare(self) -> None:
+        assert self.session is not None
+        self._subs = self.subscriptions()
+        self._declared.append(self.session.declare_subscriber(self._subs[0].key_expr, self._enqueue))
+
+
 class _NullPublisher:
     def put(self, payload: bytes, encoding: Any = None) -> None:
         pass
@@ -196,7 +211,6 @@ def _payload(seq: int) -> bytes:
 TRANSPORT_VARIANTS: dict[str, dict[str, Any]] = {
     "qos_off": {"transport/unicast/qos/enabled": False},
     "batch_5ms": {"transport/link/tx/queue/batching/time_limit": 5},
-    "nobatch": {"transport/link/tx/queue/batching/enabled": False},
     "rxbuf_1m": {"transport/link/rx/buffer_size": 1 << 20},
     "queue_16": {"transport/link/tx/queue/size/data": 16},
     "lowlat": {"transport/unicast/qos/enabled": False, "transport/unicast/lowlatency": True},
@@ -204,8 +218,6 @@ TRANSPORT_VARIANTS: dict[str, dict[str, Any]] = {
 #: environment variants of the consumer process (``<kind>+<variant>``): Zenoh's runtime threads, the inbox's bound
 ENV_VARIANTS: dict[str, dict[str, str]] = {
     "rx1": {"ZENOH_RUNTIME": "(rx: (worker_threads: 1))"},
-    "rx1_tx_app": {"ZENOH_RUNTIME": "(rx: (worker_threads: 1), tx: (handover: app))"},
-    "q1k": {"FIXSTREAM_QUEUE_SIZE": "1000"},
     "q10k": {"FIXSTREAM_QUEUE_SIZE": "10000"},
 }
 
@@ -274,6 +286,7 @@ SERVICES: dict[str, type[EchoService]] = {
     "service_fifo": FifoEchoService,
     "service_direct": DirectEchoService,
     "service_fifo_drain": FifoDrainEchoService,
+    "service_callback": CallbackEchoService,
 }
 
 
@@ -397,36 +410,60 @@ def in_process(endpoint: str) -> dict[str, float]:
     }
 
 
+LABELS = {
+    "bare": "bare Zenoh callback that counts (anchor)",
+    "bare_wildcard": "the same subscribing with a wildcard (keys not declared)",
+    "relay": "bare callback that counts and puts the payload",
+    "service": "service base, no-op core (shipped: FIFO -> delivery thread -> inbox -> own thread)",
+    "service_callback": "the same with a Python callback per sample into the inbox (before)",
+    "service_direct": "the same with that callback on Zenoh's network thread (variant)",
+    "service_inline": "the same processing in Zenoh's callback thread, no inbox (variant)",
+    "service_fifo": "the same pulling from the FIFO with recv, no inbox (variant)",
+    "service_fifo_drain": "the same pulling with try_recv, recv when empty, no inbox (variant)",
+}
+KINDS = (
+    *LABELS,
+    *(f"service+{v}" for v in TRANSPORT_VARIANTS),
+    *(f"service+{v}" for v in ENV_VARIANTS),
+)
+
+
+def _label(kind: str) -> str:
+    base, _, variant = kind.partition("+")
+    if not variant:
+        return LABELS[base]
+    what = TRANSPORT_VARIANTS.get(variant) or ENV_VARIANTS[variant]
+    return "service base with " + ", ".join(f"{k.removeprefix('transport/')}={v}" for k, v in what.items())
+
+
 def main() -> None:
     rows: list[list[Any]] = []
     figures: dict[str, Any] = {"n": N, "warm": WARM}
     with router() as endpoint:
-        kinds = ("bare", "bare_wildcard", "relay", "service", "service_inline", "service_fifo")
-        results = {k: run_consumer(k, endpoint) for k in kinds}
+        results = {k: run_consumer(k, endpoint) for k in KINDS}
         steps = in_process(endpoint)
     anchor = results["bare"]["cpu_us_per_msg"]
-    labels = {
-        "bare": "bare Zenoh callback that counts (anchor)",
-        "bare_wildcard": "the same subscribing with a wildcard (keys not declared)",
-        "relay": "bare callback that counts and puts the payload",
-        "service": "service base, no-op core (typed subscription, one output)",
-        "service_inline": "the same processing in Zenoh's callback thread (variant, not shipped)",
-        "service_fifo": "the same through Zenoh's FifoChannel (variant, not shipped)",
-    }
     for kind, r in results.items():
-        cpu = r["cpu_us_per_msg"]
+        cpu, threads = r["cpu_us_per_msg"], r["threads_us_per_msg"]
+        split = [f"{threads[g]:.2f}" if g in threads else "" for g in THREAD_GROUPS]
         rate = f"{r['msg_per_s']:,.0f}"
-        rows.append([labels[kind], f"{cpu:.2f}", f"{cpu / anchor:.2f}", f"{cpu - anchor:.2f}", rate])
+        rows.append([_label(kind), f"{cpu:.2f}", f"{cpu / anchor:.2f}", f"{cpu - anchor:.2f}", *split, rate])
         figures[kind] = r
     figures["in_process_us"] = steps
     for step, us in steps.items():
-        rows.append([f"in process: {step}", f"{us:.2f}", "", "", ""])
-    for kind in SERVICES:
-        for group, us in results[kind]["threads_us_per_msg"].items():
-            rows.append([f"{labels[kind].split(' (')[0]}: {THREAD_GROUPS[group]}", f"{us:.2f}", "", "", ""])
+        rows.append([f"in process: {step}", f"{us:.2f}", "", "", "", "", "", ""])
     emit(
         "service_base",
-        ["path", "CPU µs/msg", "ratio to anchor", "over anchor µs", "msg/s (wall)"],
+        [
+            "path",
+            "CPU µs/msg",
+            "ratio to anchor",
+            "over anchor µs",
+            "own thread",
+            "delivery / callback thread",
+            "Zenoh network threads",
+            "msg/s (wall)",
+        ],
         rows,
         figures,
     )
