@@ -32,6 +32,7 @@ Zenoh's thread and the service's.
 
 from __future__ import annotations
 
+import atexit
 import json
 import os
 import subprocess
@@ -236,6 +237,7 @@ def _consumer_settings(variant: str, endpoint: str) -> ZenohSettings:
         fd, name = tempfile.mkstemp(suffix=".json5")
         with os.fdopen(fd, "w") as f:
             json.dump(cfg, f)
+        atexit.register(os.unlink, name)  # read when the session opens; gone with the consumer process
         zs = ZenohSettings(mode="client", connect=[endpoint], config_file=Path(name))
     return zs
 
