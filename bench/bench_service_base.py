@@ -10,10 +10,15 @@ consumer process at a time takes them, and the benchmark process counts what the
   :meth:`~shared.service.Service._declare_wire_key`);
 * ``bare relay``: the callback counts and puts the payload back on an output key (the transport's cost both ways);
 * ``service base``: a :class:`~shared.service.Service` whose typed subscription takes ``Depth`` and whose core does
-  nothing: its handler returns the message as its output. Every message goes receive -> inbox -> unpack -> seq
-  and stamp checks -> validate -> dispatch -> stamp source/seq -> encode -> put, as in every fixstream service;
-* ``service base through a FifoChannel``: the same, receiving through Zenoh's FIFO handler (batching without a
-  Python callback per sample; a variant, see :class:`FifoEchoService`).
+  nothing: its handler returns the message as its output. Every message goes receive -> Zenoh's FIFO -> the
+  subscription's delivery thread -> inbox -> unpack -> seq and stamp checks -> validate -> dispatch -> stamp
+  source/seq -> encode -> put, as in every fixstream service;
+* variants of its receiving end (not shipped): a Python callback per sample into the inbox (what the base did before
+  its delivery threads, :class:`CallbackEchoService`), that callback on Zenoh's network thread
+  (:class:`DirectEchoService`), processing in the callback (:class:`InlineEchoService`), and pulling from the FIFO
+  in the service's own thread with no inbox (:class:`FifoEchoService`, :class:`FifoDrainEchoService`);
+* ``service+<variant>``: the service base with a Zenoh transport setting (:data:`TRANSPORT_VARIANTS`) or an
+  environment variable (:data:`ENV_VARIANTS`) of its own process.
 
 Each consumer measures its own CPU time (``time.process_time``: every thread of the process, Zenoh's included) and
 wall time from its ``WARM``-th message to its last; CPU per message is the figure (the machine is shared, wall time
@@ -27,14 +32,17 @@ Zenoh's thread and the service's.
 
 from __future__ import annotations
 
+import atexit
 import json
 import os
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import timeit
 from collections.abc import Iterable
+from pathlib import Path
 from typing import Any, ClassVar, cast
 
 import msgpack
@@ -70,12 +78,16 @@ class EchoService(Service):
         self.t1: tuple[float, float] | None = None
         self.threads0: dict[str, float] = {}
         self.threads1: dict[str, float] = {}
+        #: the deepest the inbox was, sampled every 1,000 messages over the measured span
+        self.max_depth = 0
 
     def subscriptions(self) -> list[Subscription]:
         return [Subscription("fixstream/sensor/bench/depth/*", self.on_depth, accepts=(Depth,))]
 
     def on_depth(self, key: str, msg: Message) -> Iterable[Output]:
         self.n += 1
+        if self.n % 1000 == 0 and self.n > WARM:
+            self.max_depth = max(self.max_depth, self._queue.qsize())
         if self.n == WARM:
             self.threads0 = thread_cpu()
             self.t0 = (time.process_time(), time.perf_counter())
@@ -136,6 +148,46 @@ class FifoEchoService(EchoService):
         self.session.close()
 
 
+class DirectEchoService(EchoService):
+    """:class:`CallbackEchoService` with its callback run on Zenoh's network thread (``Callback(indirect=False)``):
+    no Python thread between Zenoh and the inbox, but Zenoh's thread takes the GIL for every sample (a variant)."""
+
+    def _declare(self) -> None:
+        assert self.session is not None
+        self._subs = self.subscriptions()
+        cb = zenoh.handlers.Callback(self._enqueue, indirect=False)
+        self._declared.append(self.session.declare_subscriber(self._subs[0].key_expr, cb))
+
+
+class FifoDrainEchoService(FifoEchoService):
+    """:class:`FifoEchoService` taking what has queued with ``try_recv`` (no GIL release per sample) and blocking in
+    ``recv`` only when the FIFO is empty (a variant)."""
+
+    def _loop(self) -> None:
+        fifo, process, wire_keys = self._fifo, self.process, self._wire_keys
+        try_recv, time_ns = fifo.try_recv, time.time_ns
+        while not self._stop.is_set():
+            s = fifo.recv()
+            while s is not None:
+                key = str(s.key_expr)
+                if key not in wire_keys:
+                    self._declare_wire_key(key)
+                process(key, s.payload.to_bytes(), str(s.encoding), time_ns())
+                if self._stop.is_set():
+                    return
+                s = try_recv()
+
+
+class CallbackEchoService(EchoService):
+    """The same service receiving through a Python callback per sample on the thread Zenoh runs it on (its
+    "indirect" thread), which puts into the inbox: what the base shipped before the delivery threads (a variant)."""
+
+    def _declare(self) -> None:
+        assert self.session is not None
+        self._subs = self.subscriptions()
+        self._declared.append(self.session.declare_subscriber(self._subs[0].key_expr, self._enqueue))
+
+
 class _NullPublisher:
     def put(self, payload: bytes, encoding: Any = None) -> None:
         pass
@@ -156,17 +208,52 @@ def _payload(seq: int) -> bytes:
 
 
 # ----- the consumer processes --------------------------------------------------------------------------------------
-def serve(kind: str, endpoint: str) -> None:
-    """A consumer process: ``bare``, ``relay`` or ``service``; prints ``ready``, then ``cpu_s wall_s`` of the measured
-    span."""
+#: Zenoh configuration variants of the consumer's session (``<kind>+<variant>``): JSON5 paths and values
+TRANSPORT_VARIANTS: dict[str, dict[str, Any]] = {
+    "qos_off": {"transport/unicast/qos/enabled": False},
+    "batch_5ms": {"transport/link/tx/queue/batching/time_limit": 5},
+    "rxbuf_1m": {"transport/link/rx/buffer_size": 1 << 20},
+    "queue_16": {"transport/link/tx/queue/size/data": 16},
+    "lowlat": {"transport/unicast/qos/enabled": False, "transport/unicast/lowlatency": True},
+}
+#: environment variants of the consumer process (``<kind>+<variant>``): Zenoh's runtime threads, the inbox's bound
+ENV_VARIANTS: dict[str, dict[str, str]] = {
+    "rx1": {"ZENOH_RUNTIME": "(rx: (worker_threads: 1))"},
+    "q10k": {"FIXSTREAM_QUEUE_SIZE": "10000"},
+}
+
+
+def _consumer_settings(variant: str, endpoint: str) -> ZenohSettings:
+    """The consumer's Zenoh settings for a transport variant (its config written to a temporary JSON5 file)."""
     zs = ZenohSettings(mode="client", connect=[endpoint])
+    if variant in TRANSPORT_VARIANTS:
+        cfg: dict[str, Any] = {}
+        for path, value in TRANSPORT_VARIANTS[variant].items():
+            *parents, leaf = path.split("/")
+            node = cfg
+            for p in parents:
+                node = node.setdefault(p, {})
+            node[leaf] = value
+        fd, name = tempfile.mkstemp(suffix=".json5")
+        with os.fdopen(fd, "w") as f:
+            json.dump(cfg, f)
+        atexit.register(os.unlink, name)  # read when the session opens; gone with the consumer process
+        zs = ZenohSettings(mode="client", connect=[endpoint], config_file=Path(name))
+    return zs
+
+
+def serve(kind: str, endpoint: str) -> None:
+    """A consumer process: ``bare``, ``relay`` or ``service`` (``+variant``: a transport variant); prints ``ready``,
+    then ``cpu_s wall_s`` of the measured span."""
+    kind, _, variant = kind.partition("+")
+    zs = _consumer_settings(variant, endpoint)
     key_expr = "fixstream/sensor/bench/depth/*" if kind == "bare_wildcard" else IN_KEY
     if kind in SERVICES:
         svc = SERVICES[kind](ServiceSettings(instance="b0"), zs)
         threading.Timer(1.0, lambda: print("ready", flush=True)).start()  # run() declares within the first second
         svc.run()
         assert svc.t0 is not None and svc.t1 is not None
-        threads = {g: svc.threads1[g] - svc.threads0[g] for g in svc.threads0}
+        threads = {g: svc.threads1[g] - svc.threads0[g] for g in svc.threads0} | {"max_depth": svc.max_depth}
         print(f"{svc.t1[0] - svc.t0[0]} {svc.t1[1] - svc.t0[1]} {json.dumps(threads)}", flush=True)
         return
     session = open_session(zs)
@@ -199,6 +286,9 @@ SERVICES: dict[str, type[EchoService]] = {
     "service": EchoService,
     "service_inline": InlineEchoService,
     "service_fifo": FifoEchoService,
+    "service_direct": DirectEchoService,
+    "service_fifo_drain": FifoDrainEchoService,
+    "service_callback": CallbackEchoService,
 }
 
 
@@ -219,7 +309,7 @@ def publish(endpoint: str) -> None:
     session.close()
 
 
-def _spawn(fn: str, *args: str) -> subprocess.Popen[str]:
+def _spawn(fn: str, *args: str, env: dict[str, str] | None = None) -> subprocess.Popen[str]:
     code = f"import sys; from bench.bench_service_base import {fn}; {fn}(*sys.argv[1:])"
     return subprocess.Popen(
         [sys.executable, "-c", code, *args],
@@ -227,7 +317,7 @@ def _spawn(fn: str, *args: str) -> subprocess.Popen[str]:
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         text=True,
-        env={**os.environ, "FIXSTREAM_LOG_LEVEL": "WARNING"},
+        env={**os.environ, "FIXSTREAM_LOG_LEVEL": "WARNING", **(env or {})},
     )
 
 
@@ -237,7 +327,8 @@ def run_consumer(kind: str, endpoint: str) -> dict[str, Any]:
     got = [0]
     session = open_session(ZenohSettings(mode="client", connect=[endpoint]))
     counter = session.declare_subscriber(OUT_KEY, lambda s: got.__setitem__(0, got[0] + 1))
-    consumer = _spawn("serve", kind, endpoint)
+    variant = kind.partition("+")[2]
+    consumer = _spawn("serve", kind, endpoint, env=ENV_VARIANTS.get(variant, {}))
     publisher = _spawn("publish", endpoint)
     try:
         assert consumer.stdout is not None and publisher.stdout is not None and publisher.stdin is not None
@@ -263,11 +354,13 @@ def run_consumer(kind: str, endpoint: str) -> dict[str, Any]:
         counter.undeclare()
         session.close()
     span = N - WARM
+    max_depth = int(threads.pop("max_depth", 0))
     return {
         "cpu_us_per_msg": cpu_s / span * 1e6,
         "msg_per_s": span / wall_s,
         "outputs_received": got[0] if not kind.startswith("bare") else 0,
         "threads_us_per_msg": {g: t / span * 1e6 for g, t in threads.items()},
+        "max_inbox_depth": max_depth,
     }
 
 
@@ -319,36 +412,60 @@ def in_process(endpoint: str) -> dict[str, float]:
     }
 
 
+LABELS = {
+    "bare": "bare Zenoh callback that counts (anchor)",
+    "bare_wildcard": "the same subscribing with a wildcard (keys not declared)",
+    "relay": "bare callback that counts and puts the payload",
+    "service": "service base, no-op core (shipped: FIFO -> delivery thread -> inbox -> own thread)",
+    "service_callback": "the same with a Python callback per sample into the inbox (before)",
+    "service_direct": "the same with that callback on Zenoh's network thread (variant)",
+    "service_inline": "the same processing in Zenoh's callback thread, no inbox (variant)",
+    "service_fifo": "the same pulling from the FIFO with recv, no inbox (variant)",
+    "service_fifo_drain": "the same pulling with try_recv, recv when empty, no inbox (variant)",
+}
+KINDS = (
+    *LABELS,
+    *(f"service+{v}" for v in TRANSPORT_VARIANTS),
+    *(f"service+{v}" for v in ENV_VARIANTS),
+)
+
+
+def _label(kind: str) -> str:
+    base, _, variant = kind.partition("+")
+    if not variant:
+        return LABELS[base]
+    what = TRANSPORT_VARIANTS.get(variant) or ENV_VARIANTS[variant]
+    return "service base with " + ", ".join(f"{k.removeprefix('transport/')}={v}" for k, v in what.items())
+
+
 def main() -> None:
     rows: list[list[Any]] = []
     figures: dict[str, Any] = {"n": N, "warm": WARM}
     with router() as endpoint:
-        kinds = ("bare", "bare_wildcard", "relay", "service", "service_inline", "service_fifo")
-        results = {k: run_consumer(k, endpoint) for k in kinds}
+        results = {k: run_consumer(k, endpoint) for k in KINDS}
         steps = in_process(endpoint)
     anchor = results["bare"]["cpu_us_per_msg"]
-    labels = {
-        "bare": "bare Zenoh callback that counts (anchor)",
-        "bare_wildcard": "the same subscribing with a wildcard (keys not declared)",
-        "relay": "bare callback that counts and puts the payload",
-        "service": "service base, no-op core (typed subscription, one output)",
-        "service_inline": "the same processing in Zenoh's callback thread (variant, not shipped)",
-        "service_fifo": "the same through Zenoh's FifoChannel (variant, not shipped)",
-    }
     for kind, r in results.items():
-        cpu = r["cpu_us_per_msg"]
+        cpu, threads = r["cpu_us_per_msg"], r["threads_us_per_msg"]
+        split = [f"{threads[g]:.2f}" if g in threads else "" for g in THREAD_GROUPS]
         rate = f"{r['msg_per_s']:,.0f}"
-        rows.append([labels[kind], f"{cpu:.2f}", f"{cpu / anchor:.2f}", f"{cpu - anchor:.2f}", rate])
+        rows.append([_label(kind), f"{cpu:.2f}", f"{cpu / anchor:.2f}", f"{cpu - anchor:.2f}", *split, rate])
         figures[kind] = r
     figures["in_process_us"] = steps
     for step, us in steps.items():
-        rows.append([f"in process: {step}", f"{us:.2f}", "", "", ""])
-    for kind in SERVICES:
-        for group, us in results[kind]["threads_us_per_msg"].items():
-            rows.append([f"{labels[kind].split(' (')[0]}: {THREAD_GROUPS[group]}", f"{us:.2f}", "", "", ""])
+        rows.append([f"in process: {step}", f"{us:.2f}", "", "", "", "", "", ""])
     emit(
         "service_base",
-        ["path", "CPU µs/msg", "ratio to anchor", "over anchor µs", "msg/s (wall)"],
+        [
+            "path",
+            "CPU µs/msg",
+            "ratio to anchor",
+            "over anchor µs",
+            "own thread",
+            "delivery / callback thread",
+            "Zenoh network threads",
+            "msg/s (wall)",
+        ],
         rows,
         figures,
     )

@@ -51,6 +51,21 @@ class Inbox:
         return n < self.max_items and b + size <= self.max_bytes
 
     def put(self, item: Any, size: int, stop: threading.Event) -> bool:
+        """Queue ``item`` (``size`` payload bytes); False if it was dropped (and counted)."""
+        with self._lock:  # the common case, inline: not shedding, and room for it
+            q = self._q
+            if (
+                not self._shedding
+                and q.qsize() < self.max_items
+                and self._admitted - self._taken + size <= self.max_bytes
+            ):
+                self._admitted += size
+                q.put((item, size))
+                return True
+        return self._put_held(item, size, stop)
+
+    def _put_held(self, item: Any, size: int, stop: threading.Event) -> bool:
+        """:meth:`put` when the inbox is full or shedding: hold for at most ``block_s``, then drop and count."""
         deadline: float | None = None
         while True:
             with self._lock:

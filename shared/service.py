@@ -10,12 +10,14 @@ handler (which calls a pure core), and publishes what the handler returns. Aroun
 * ends a scenario run once every message the player announced has arrived (below),
 * shuts down cleanly on SIGTERM/SIGINT.
 
-Samples are queued by Zenoh's callback threads and processed by one thread in arrival order, so a
-service is deterministic for a given input order (architecture rule 1). The queue is bounded in items and
-bytes; when it is full, the delivery thread is held (which slows blocking publishers) for at most
-``enqueue_block_s``, then samples are dropped and counted (``queue_full``) until the queue has drained to half,
-so a busy service never holds Zenoh's thread long enough to lose its session. A payload larger than
-``max_payload_bytes`` is refused unread.
+Samples are queued by a delivery thread per subscription and processed by one thread in arrival order, so a
+service is deterministic for a given input order (architecture rule 1). Zenoh hands each subscription's samples to
+its delivery thread through a FIFO of ``FIFO_SAMPLES``; the thread takes every sample that has arrived in one go
+(``try_recv``, holding the GIL: one hand-over of the GIL per burst, where a Python callback costs one per sample)
+and puts them in the queue. The queue is bounded in items and bytes; when it is full, the delivery thread is held
+(which fills the FIFO, then holds Zenoh's thread and slows blocking publishers) for at most ``enqueue_block_s``, then
+samples are dropped and counted (``queue_full``) until the queue has drained to half, so a busy service never holds
+Zenoh's thread long enough to lose its session. A payload larger than ``max_payload_bytes`` is refused unread.
 
 **Faults are counted where they happen.** Every sample's ``(header.source, header.seq)`` per key goes through a
 :class:`~shared.seq.SeqTracker`: transport gaps are ``lost`` (with a ``seq_gap`` diagnostic), repeats and restarts
@@ -179,6 +181,9 @@ class _DiagLimiter:
 _STOP = object()
 #: samples processed between two looks at the clock while the inbox is not empty
 _BURST = 64
+#: samples Zenoh holds per subscription for its delivery thread (the capacity of the channel Zenoh itself puts
+#: between its network thread and a Python callback)
+FIFO_SAMPLES = 256
 
 
 class Service:
@@ -221,6 +226,8 @@ class Service:
         self._limiter = _DiagLimiter(self.diag_rate_hz, self.diag_burst)
         self.diag_suppressed = 0
         self._declared: list[Any] = []
+        #: the delivery thread of each subscription (:meth:`_deliver`)
+        self._delivery: list[threading.Thread] = []
         self._subs: list[Subscription] = []
         #: per key seen: its subscription (the first that matches, or None) and whether it is a scenario marker key
         self._routes: dict[str, tuple[Subscription | None, bool]] = {}
@@ -477,7 +484,8 @@ class Service:
         handlers read it as ``self.rx_time_ns``.
         """
         self.rx_time_ns = rx_time_ns if rx_time_ns is not None else time.time_ns()
-        self.counters.received += 1
+        counters = self.counters
+        counters.received += 1
         if len(payload) > self._max_payload:
             self.reject(key, "payload_too_large", f"{len(payload)} bytes > max_payload_bytes {self._max_payload}")
             return
@@ -495,8 +503,9 @@ class Service:
                 return
         outputs = self._dispatch(key, payload, encoding, sub, scenario, obj, unpack_error)
         if outputs is not None:
-            self.counters.accepted += 1
-            self._publish_all(outputs)
+            counters.accepted += 1
+            if outputs:  # most samples of most services: nothing to publish (already truth-tested: `or ()`)
+                self._publish_all(outputs)
         if counted and self._pending_end is not None:
             self._end_scenario(force=False)
 
@@ -703,6 +712,23 @@ class Service:
             return
         self._queue.put((key, payload.to_bytes(), str(sample.encoding), time.time_ns()), size, self._release_senders)
 
+    def _deliver(self, fifo: zenoh.Handler[zenoh.Sample]) -> None:
+        """A subscription's delivery thread: wait for a sample (the GIL released), then put it and every sample that
+        has arrived behind it into the inbox without letting go of the GIL (``try_recv``); ends once the subscriber
+        is undeclared and its FIFO is empty."""
+        enqueue, try_recv = self._enqueue, fifo.try_recv
+        try:
+            for first in fifo:
+                sample: zenoh.Sample | None = first
+                while sample is not None:
+                    try:
+                        enqueue(sample)
+                    except Exception:  # as Zenoh does for a callback: log it, and the next sample is delivered
+                        log.error("%s: delivering a sample failed:\n%s", self.source, traceback.format_exc())
+                    sample = try_recv()
+        except zenoh.ZError:  # undeclared in the middle of a burst
+            pass
+
     def _declare_wire_key(self, key: str) -> None:
         """Declare a key this service receives samples on (the first ``max_wire_keys`` keys).
 
@@ -726,8 +752,12 @@ class Service:
         keyexprs = [s.key_expr for s in self._subs]
         if not any(zenoh.KeyExpr(k).intersects(zenoh.KeyExpr(scenario_keys)) for k in keyexprs):
             keyexprs.append(scenario_keys)
-        for ke in keyexprs:
-            self._declared.append(self.session.declare_subscriber(ke, self._enqueue))
+        for i, ke in enumerate(keyexprs):
+            sub = self.session.declare_subscriber(ke, zenoh.handlers.FifoChannel(FIFO_SAMPLES))
+            self._declared.append(sub)
+            pump = threading.Thread(target=self._deliver, args=(sub.handler,), name=f"deliver-{i}", daemon=True)
+            pump.start()
+            self._delivery.append(pump)
         self._declared.append(
             self.session.declare_queryable(keys.status(self.name, self.instance), self._answer_status)
         )
@@ -814,6 +844,8 @@ class Service:
         for d in subscribers:  # stop the inflow first, then finish what already arrived
             with contextlib.suppress(Exception):
                 d.undeclare()
+        for pump in self._delivery:  # what was in the FIFOs is in the inbox (or counted as dropped) after this
+            pump.join(timeout=self.settings.enqueue_block_s + 1.0)
         try:
             self._drain()
             self._end_scenario(force=True)

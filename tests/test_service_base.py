@@ -20,6 +20,7 @@ from shared.settings import ServiceSettings, ZenohSettings
 
 IN_KEY = "fixstream/sensor/auv1/depth/d0"
 OUT_KEY = "fixstream/fix/echo/auv1"
+ENC = codec.encoding_of(Depth)
 
 
 class DepthEcho(Service):
@@ -147,3 +148,45 @@ def test_run_offline_uses_the_same_path_and_stamps_outputs() -> None:
         (1, "echo_test/t3", 3.0),
     ]
     assert [d.reason for d in diags] == ["stamp_backwards", "too_deep"]  # type: ignore[attr-defined]
+
+
+class FlakyDelivery(DepthEcho):
+    """A DepthEcho whose hand-over into the inbox fails once, on its second sample."""
+
+    name = "flaky_test"
+
+    def __init__(self, settings: ServiceSettings, zenoh_settings: ZenohSettings) -> None:
+        super().__init__(settings, zenoh_settings)
+        self.enqueued = 0
+
+    def _enqueue(self, sample: zenoh.Sample) -> None:
+        self.enqueued += 1
+        if self.enqueued == 2:
+            raise RuntimeError("simulated failure in the hand-over")
+        super()._enqueue(sample)
+
+
+def test_a_delivery_thread_outlives_a_failed_hand_over_and_ends_with_the_service(router: str) -> None:
+    """Each subscription's samples reach the inbox through a delivery thread (Zenoh's FIFO, then ``try_recv``): a
+    sample whose hand-over fails is logged and the next ones are delivered, and the threads end with the service."""
+    zs = ZenohSettings(mode="client", connect=[router])
+    svc = FlakyDelivery(ServiceSettings(instance="t2"), zs)
+    thread = threading.Thread(target=svc.run, daemon=True)
+    thread.start()
+    client = open_session(zs)
+    alive = keys.alive("flaky_test", "t2")
+    assert wait_until(lambda: len(list(client.liveliness().get(alive, timeout=0.5))) == 1)
+    outputs: list[float] = []
+    client.declare_subscriber(OUT_KEY, lambda s: outputs.append(codec.unpack(s.payload.to_bytes())["depth_m"]))
+    assert len(svc._delivery) == 2  # the data subscription and the scenario markers'
+    assert all(t.is_alive() for t in svc._delivery)
+    for i in range(6):
+        _put(client, IN_KEY, codec.encode(Depth(header=Header(stamp_ns=10 * (i + 1)), depth_m=float(i))), ENC)
+    assert wait_until(lambda: len(outputs) == 5)
+    assert outputs == [0.0, 2.0, 3.0, 4.0, 5.0]  # the second sample's hand-over failed; the others came through
+    assert svc.counters.received == 5
+    svc.stop()
+    thread.join(timeout=10)
+    assert not thread.is_alive()
+    assert not any(t.is_alive() for t in svc._delivery)
+    client.close()
