@@ -66,8 +66,8 @@ def test_the_inbox_admits_drops_and_sheds_as_specified(ops: list[int], max_items
             assert inbox.put(i, op, stop) is spec.put(i, op)
         assert inbox.qsize() == len(spec.items) <= max_items
         assert inbox.bytes == sum(s for _, s in spec.items) <= max_bytes
-    assert inbox.take_dropped() == spec.dropped
-    assert inbox.take_dropped() == 0  # taken once
+    assert inbox.take_dropped() == (spec.dropped, 0)  # none released by the stop event: it is never set here
+    assert inbox.take_dropped() == (0, 0)  # taken once
 
 
 def test_a_full_put_waits_for_room_while_the_consumer_takes() -> None:
@@ -75,7 +75,7 @@ def test_a_full_put_waits_for_room_while_the_consumer_takes() -> None:
     assert inbox.put("a", 1, stop) and inbox.put("b", 1, stop)
     threading.Timer(0.05, inbox.get).start()  # room appears while the third put is held
     assert inbox.put("c", 1, stop)
-    assert inbox.take_dropped() == 0
+    assert inbox.take_dropped() == (0, 0)
     assert [inbox.get(), inbox.get()] == ["b", "c"]
 
 
@@ -88,7 +88,7 @@ def test_a_full_put_drops_and_counts_after_the_hold_then_sheds_at_once() -> None
     assert time.monotonic() - t0 >= 0.05  # held for block_s before the drop
     inbox.get()  # drained to half its bound (1 of 2 items): the next put is admitted again
     assert inbox.put("d", 1, stop)
-    assert inbox.take_dropped() == 1
+    assert inbox.take_dropped() == (1, 0)  # held past block_s, not released by the stop
 
 
 def test_a_stopping_process_does_not_hold_the_delivery_thread() -> None:
@@ -98,7 +98,7 @@ def test_a_stopping_process_does_not_hold_the_delivery_thread() -> None:
     t0 = time.monotonic()
     assert not inbox.put("b", 1, stop)
     assert time.monotonic() - t0 < 5.0  # not the 50 s hold
-    assert inbox.take_dropped() == 1
+    assert inbox.take_dropped() == (1, 1)  # counted as released by the stop
 
 
 def test_control_items_are_never_dropped_and_cost_no_bytes() -> None:
@@ -134,4 +134,4 @@ def test_concurrent_delivery_threads_never_exceed_the_bounds() -> None:
             pass
     assert deepest <= max_items and heaviest <= max_bytes
     assert taken == sum(admitted)
-    assert taken + inbox.take_dropped() == n * threads
+    assert taken + inbox.take_dropped()[0] == n * threads
