@@ -179,6 +179,44 @@ def summary_row(label: str, stream: str, phases: dict[str, Any]) -> list[Any]:
     ]
 
 
+#: bins of the heading profile through a turn: scans since the turn's first sample (1 = the first plot after the
+#: roll-in began), and the first scans after it ended ("after 1-2": the roll-out and the scan after it)
+PROFILE_BINS: tuple[tuple[str, int, int], ...] = (
+    ("turn 1-2", 1, 2),
+    ("turn 3-4", 3, 4),
+    ("turn 5-8", 5, 8),
+    ("turn 9+", 9, 10**6),
+    ("after 1-2", -2, -1),
+    ("after 3-6", -6, -3),
+)
+
+
+def turn_profile(records: list[dict[str, Any]], first_scan: int = 20) -> dict[str, tuple[float | None, int]]:
+    """Heading RMS (deg) and sample count per PROFILE_BINS over per-run records of one stream (run_metrics'
+    ``targets`` values), from ``first_scan`` on: where in a turn the error is made."""
+    sq = {name: 0.0 for name, _, _ in PROFILE_BINS}
+    cnt = dict.fromkeys(sq, 0)
+    for rec in records:
+        phase, err = rec["phase"], rec["err"]["psi"]
+        run_len, since_end = 0, 10**6
+        for k, ph in enumerate(phase):
+            if ph == "turn":
+                run_len += 1
+                pos = run_len
+            else:
+                since_end = 1 if run_len else since_end + 1
+                run_len = 0
+                pos = -since_end
+            e = err[k]
+            if k < first_scan - 1 or e is None or not math.isfinite(e):
+                continue
+            for name, lo, hi in PROFILE_BINS:
+                if lo <= pos <= hi:
+                    sq[name] += e * e
+                    cnt[name] += 1
+    return {n: (math.sqrt(sq[n] / cnt[n]) if cnt[n] else None, cnt[n]) for n in sq}
+
+
 def main() -> None:
     runs = int(os.environ.get("ATTITUDE_REFERENCE_RUNS", "6"))
     n_particles = int(os.environ.get("ATTITUDE_REFERENCE_PARTICLES", "3000"))
@@ -225,7 +263,16 @@ def main() -> None:
         "NEES in chi2_9 95 % turn / straight",
         "scans with ANEES in band turn / straight",
     ]
+    profile_rows = []
+    for s in STREAMS:
+        recs = [rec for n in files for run in per_file[n][s] for rec in run["targets"].values()]
+        prof = turn_profile(recs)
+        figures[f"turn_profile/{s}"] = prof
+        profile_rows.append([s, *(_fmt(prof[name][0]) for name, _, _ in PROFILE_BINS)])
+    counts = turn_profile([rec for n in files for run in per_file[n]["PF"] for rec in run["targets"].values()])
     emit("attitude_reference", headers, rows, figures)
+    print("\n## heading RMS (deg) through the turns, all files pooled: scans since the turn began / ended\n")
+    print(table(["stream", *(f"{n} ({counts[n][1]})" for n, _, _ in PROFILE_BINS)], profile_rows))
     print(f"\n{runs} runs per file, {n_particles} particles, PF {figures['pf_ms_per_plot']:.1f} ms per plot")
     print(table(["", ""], [["wall time (s)", figures["seconds"]]]))
 
