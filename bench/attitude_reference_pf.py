@@ -97,6 +97,10 @@ class ManoeuvrePrior:
     heading_change_deg: tuple[float, float] = (60.0, 240.0)
     agile_heading_change_deg: tuple[float, float] = (90.0, 180.0)
     omega_walk_rps_sqrts: float = 5e-4  # random walk of a turn's rate (particle diversity, speed drift)
+    # ablations (not the generator's law): a memoryless turn exit of this mean sojourn instead of the heading-change
+    # law; a white vertical jerk in turns (the vertical acceleration a random walk) instead of the wander
+    turn_exit_sojourn_s: float | None = None
+    turn_vertical_jerk_mps3: float | None = None
     onset_proposal_boost: float = 10.0  # onsets are proposed this many times as often (importance weights)
     min_share_turn: float = 0.25  # particles kept in the turn regime at a resampling (stratified; weights adjust)
     min_share_manoeuvre: float = 0.1
@@ -338,6 +342,8 @@ class ReferencePF:
         f1 = np.clip((done + step_deg - lo) / (hi - lo), 0.0, 1.0)
         with np.errstate(invalid="ignore", divide="ignore"):
             hazard = np.where(f0 < 1.0, (f1 - f0) / (1.0 - f0), 1.0)
+        if pr.turn_exit_sojourn_s is not None:
+            hazard = np.full(self.n, -math.expm1(-dt / pr.turn_exit_sojourn_s))
         end_turn = turning & (u < hazard)
         # M -> S, or a jump inside M
         man = reg == M
@@ -428,6 +434,10 @@ class ReferencePF:
         q[:, H_IDX, H_IDX] = np.einsum("kn,nkij->nij", w, h[:, 1:])
         phi[:, V_IDX, V_IDX] = tab.phi_v
         q[:, V_IDX, V_IDX] = q_v * tab.k_v
+        if pr.turn_vertical_jerk_mps3 is not None:
+            turn = self.regime == T
+            phi[turn, V_IDX, V_IDX] = tab.phi_vm
+            q[turn, V_IDX, V_IDX] = pr.turn_vertical_jerk_mps3**2 * tab.k_vm
         if man.any():
             phi[man, H_IDX, H_IDX] = tab.phi_hm
             q[man, H_IDX, H_IDX] = q_m * tab.k_hm

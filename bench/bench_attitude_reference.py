@@ -20,15 +20,18 @@ from the truth's ``extra``, from scan 20, the 9-state ANEES against its chi2(9N)
     ATTITUDE_REFERENCE_RUNS=6 ATTITUDE_REFERENCE_PARTICLES=3000 python -m bench attitude_reference
     ATTITUDE_REFERENCE_WORKERS=2 ...                  # processes (default 1)
     ATTITUDE_REFERENCE_FILES=attitude_turns_light ... # only these files (default: the four family files)
+    ATTITUDE_REFERENCE_PRIOR='{"turn_exit_sojourn_s": 20}' ...   # a prior field changed (an ablation)
 """
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import time
 import zlib
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -57,6 +60,12 @@ FIRST_OUTPUT = 3
 _D2R = math.pi / 180.0
 
 
+def reference_prior() -> ManoeuvrePrior:
+    """The reference's prior: the generator's law, with the fields of ATTITUDE_REFERENCE_PRIOR (a JSON object,
+    e.g. an ablation ``{"turn_exit_sojourn_s": 20}``) replaced."""
+    return replace(ManoeuvrePrior(), **json.loads(os.environ.get("ATTITUDE_REFERENCE_PRIOR", "{}")))
+
+
 def reference_outputs(
     events: list[Event], params: dict[str, Any], scenario: Any, n_particles: int, seed: list[int]
 ) -> tuple[list[Event], list[Event], float, int]:
@@ -72,7 +81,7 @@ def reference_outputs(
     for ev in events:
         if isinstance(ev.msg, RadarPlot) and ev.key.startswith(prefix):
             plots.setdefault(ev.msg.target_id, []).append(ev.msg)
-    prior = ManoeuvrePrior()
+    prior = reference_prior()
     out: list[Event] = []
     out_s: list[Event] = []
     seconds = 0.0
@@ -239,7 +248,7 @@ def main() -> None:
         "seed": SEED,
         "seconds": time.perf_counter() - t0,
         "pf_ms_per_plot": 1e3 * pf_seconds / max(pf_plots, 1),
-        "prior": ManoeuvrePrior().__dict__,
+        "prior": reference_prior().__dict__,
     }
     rows: list[list[Any]] = []
     groups = [("family", files)] if len(files) > 1 else []
