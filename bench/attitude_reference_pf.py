@@ -43,9 +43,13 @@ Regime changes happen on a sub-step grid (1 s), so a 3-5 s roll-in is a jump of 
 regime path the prediction is exact: Phi(omega) = expm(A(omega) dt) and Q by Van Loan's integral, tabulated on
 an omega grid (step 2e-4 rad/s: 0.03 deg of heading per 5 s scan at most).
 
-**Filter**: bootstrap proposal of the regime path from the prior (the regimes sampled per sub-step), exact
-Kalman prediction and update per particle (the converted plot z, R_z of eq. 1 measures the position), weights by
-the innovation likelihood N(nu; 0, S), systematic resampling when the effective sample size falls below half.
+**Filter**: the regime path sampled per sub-step from the prior, except that onsets are proposed
+``onset_proposal_boost`` times as often (weights p / q for a switch, (1 - p) / (1 - q) for a stay); exact Kalman
+prediction and update per particle (the converted plot z, R_z of eq. 1 measures the position), weights by the
+innovation likelihood N(nu; 0, S); when the effective sample size falls below half, systematic resampling
+stratified by regime, with at least ``min_share_turn`` / ``min_share_manoeuvre`` of the particles kept in T / M
+(weights W_r / n_r: the posterior is unchanged; a turn that has just begun keeps particles until the plots decide).
+``turn_exit_sojourn_s`` and ``turn_vertical_jerk_mps3`` are ablations, not the generator's law.
 The output is the first two moments of the posterior mixture of the 9-state, sum_i w_i N(T_i s_i, T_i P_i T_i^T):
 the same (alpha, P) the IMM reports, to which the same angle block (eqs. 4-5) is applied.
 """

@@ -17,6 +17,9 @@ from the truth's ``extra``, from scan 20, the 9-state ANEES against its chi2(9N)
   "no manoeuvre now"): on straight legs, how much of the PF's NEES deficit is the spread of its manoeuvre
   hypotheses.
 
+A second table splits the heading RMS of the turns by the scans since the turn began (and the first scans after it
+ended): where in a turn each stream makes its error.
+
     ATTITUDE_REFERENCE_RUNS=6 ATTITUDE_REFERENCE_PARTICLES=3000 python -m bench attitude_reference
     ATTITUDE_REFERENCE_WORKERS=2 ...                  # processes (default 1)
     ATTITUDE_REFERENCE_FILES=attitude_turns_light ... # only these files (default: the four family files)
