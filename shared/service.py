@@ -226,8 +226,8 @@ class Service:
         self._limiter = _DiagLimiter(self.diag_rate_hz, self.diag_burst)
         self.diag_suppressed = 0
         self._declared: list[Any] = []
-        #: the delivery thread of each subscription (:meth:`_deliver`)
-        self._delivery: list[threading.Thread] = []
+        #: the delivery thread of each subscriber (by ``id``; :meth:`_subscribe`)
+        self._delivery: dict[int, threading.Thread] = {}
         self._subs: list[Subscription] = []
         #: per key seen: its subscription (the first that matches, or None) and whether it is a scenario marker key
         self._routes: dict[str, tuple[Subscription | None, bool]] = {}
@@ -745,6 +745,29 @@ class Service:
             log.debug("%s: could not declare key %s", self.source, key, exc_info=True)
         self._wire_keys[key] = declared
 
+    def _subscribe(self, key_expr: str) -> zenoh.Subscriber[Any]:
+        """A subscriber on ``key_expr`` whose samples reach the inbox through a FIFO of :data:`FIFO_SAMPLES` and a
+        delivery thread of its own (:meth:`_deliver`); end it with :meth:`_unsubscribe`."""
+        assert self.session is not None
+        sub = self.session.declare_subscriber(key_expr, zenoh.handlers.FifoChannel(FIFO_SAMPLES))
+        name = f"deliver-{len(self._delivery)}"
+        pump = threading.Thread(target=self._deliver, args=(sub.handler,), name=name, daemon=True)
+        pump.start()
+        self._delivery[id(sub)] = pump
+        return sub
+
+    def _unsubscribe(self, subscribers: Iterable[Any]) -> None:
+        """Undeclare ``subscribers``, then wait for their delivery threads: what was in their FIFOs is in the inbox
+        (or counted as dropped) after this."""
+        subscribers = list(subscribers)
+        for d in subscribers:
+            with contextlib.suppress(Exception):
+                d.undeclare()
+        for d in subscribers:
+            pump = self._delivery.pop(id(d), None)
+            if pump is not None:
+                pump.join(timeout=self.settings.enqueue_block_s + 1.0)
+
     def _declare(self) -> None:
         assert self.session is not None
         self._subs = self.subscriptions()
@@ -752,12 +775,8 @@ class Service:
         keyexprs = [s.key_expr for s in self._subs]
         if not any(zenoh.KeyExpr(k).intersects(zenoh.KeyExpr(scenario_keys)) for k in keyexprs):
             keyexprs.append(scenario_keys)
-        for i, ke in enumerate(keyexprs):
-            sub = self.session.declare_subscriber(ke, zenoh.handlers.FifoChannel(FIFO_SAMPLES))
-            self._declared.append(sub)
-            pump = threading.Thread(target=self._deliver, args=(sub.handler,), name=f"deliver-{i}", daemon=True)
-            pump.start()
-            self._delivery.append(pump)
+        for ke in keyexprs:
+            self._declared.append(self._subscribe(ke))
         self._declared.append(
             self.session.declare_queryable(keys.status(self.name, self.instance), self._answer_status)
         )
@@ -841,11 +860,7 @@ class Service:
 
     def _shutdown(self) -> None:
         subscribers = [d for d in self._declared if isinstance(d, zenoh.Subscriber)]
-        for d in subscribers:  # stop the inflow first, then finish what already arrived
-            with contextlib.suppress(Exception):
-                d.undeclare()
-        for pump in self._delivery:  # what was in the FIFOs is in the inbox (or counted as dropped) after this
-            pump.join(timeout=self.settings.enqueue_block_s + 1.0)
+        self._unsubscribe(subscribers)  # stop the inflow first, then finish what already arrived
         try:
             self._drain()
             self._end_scenario(force=True)

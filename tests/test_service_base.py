@@ -178,8 +178,9 @@ def test_a_delivery_thread_outlives_a_failed_hand_over_and_ends_with_the_service
     assert wait_until(lambda: len(list(client.liveliness().get(alive, timeout=0.5))) == 1)
     outputs: list[float] = []
     client.declare_subscriber(OUT_KEY, lambda s: outputs.append(codec.unpack(s.payload.to_bytes())["depth_m"]))
-    assert len(svc._delivery) == 2  # the data subscription and the scenario markers'
-    assert all(t.is_alive() for t in svc._delivery)
+    pumps = list(svc._delivery.values())
+    assert len(pumps) == 2  # the data subscription and the scenario markers'
+    assert all(t.is_alive() for t in pumps)
     for i in range(6):
         _put(client, IN_KEY, codec.encode(Depth(header=Header(stamp_ns=10 * (i + 1)), depth_m=float(i))), ENC)
     assert wait_until(lambda: len(outputs) == 5)
@@ -188,5 +189,5 @@ def test_a_delivery_thread_outlives_a_failed_hand_over_and_ends_with_the_service
     svc.stop()
     thread.join(timeout=10)
     assert not thread.is_alive()
-    assert not any(t.is_alive() for t in svc._delivery)
+    assert not any(t.is_alive() for t in pumps) and not svc._delivery
     client.close()

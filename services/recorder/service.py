@@ -16,15 +16,17 @@ Every message's time in the file is its ``header.stamp_ns`` (the data clock): a 
 gap): ``seq.lost`` counts transport gaps only; jumps beyond any plausible loss, repeats and restarts are counted
 apart. An in-order message costs one dict look-up; the tracker sees only the exceptions.
 
-**Throughput and back-pressure.** Samples reach the recorder through the service base's inbox
-(:class:`shared.inbox.Inbox`, ``queue_size`` samples): Zenoh's callback only enqueues, and one thread drains the
-inbox in batches, validates and hands JSON to the Rust MCAP writer. When the inbox is full the callback holds
-Zenoh's delivery for up to ``enqueue_block_s`` (30 s; the router waits 60 s before it closes a blocked link), so a
-blocking publisher slows down instead of anything being lost; only beyond that are samples dropped, and counted
-(``queue_full``). (Zenoh's own FIFO handler, once full, drops without a word: measured on the demo, 7 of 61 PCL
-scans.) The recorder never queues without bound, and stops within an inbox's worth of work after SIGTERM. Its
-status queryable and liveliness token live on a second session, whose link the data's back-pressure never holds,
-so it answers at once however far behind the data is.
+**Throughput and back-pressure.** Samples reach the recorder as they reach every service (:mod:`shared.service`):
+a Zenoh FIFO per subscription, a delivery thread that moves each burst into the inbox (:class:`shared.inbox.Inbox`,
+``queue_size`` samples), and one thread that drains the inbox in batches, validates and hands JSON to the Rust MCAP
+writer. When the inbox is full the delivery thread is held, the FIFO fills and holds Zenoh's thread, for up to
+``enqueue_block_s`` (30 s; the router waits 60 s before it closes a blocked link), so a blocking publisher slows
+down instead of anything being lost; only beyond that are samples dropped, and counted (``queue_full``). (Zenoh's
+FIFO itself loses nothing when full: with 4 places and a reader that waits 3 s, 1,000 of 1,000 samples arrive in
+order, zenoh-python 1.10.2.) The recorder never queues without bound. After SIGTERM it records what is still in
+flight until the inflow is quiet (``stop_drain_s``, :meth:`RecorderService._record_in_flight`). Its status
+queryable and liveliness token live on a second session, whose link the data's back-pressure never holds, so it
+answers at once however far behind the data is.
 
 **Crash bound.** In memory at any time: the inbox (≤ ``queue_size`` samples) and the open chunk (≤
 ``chunk_flush_s`` of wall time, checked after every batch, and ≤ ``chunk_size_bytes``). A SIGKILL loses at most
@@ -219,7 +221,7 @@ class RecorderService(Service):
         subs: list[Any] = []
         declared: list[Any] = []
         try:
-            subs.append(self.session.declare_subscriber(self.config.key_expr, self._enqueue))
+            subs.append(self._subscribe(self.config.key_expr))  # FIFO + delivery thread into the inbox, as a service
             if not zenoh.KeyExpr(self.config.key_expr).intersects(zenoh.KeyExpr(_SCENARIO_KEYS)):
                 # markers are not recorded then, but they still name the run in the metadata
                 subs.append(self.session.declare_subscriber(_SCENARIO_KEYS, zenoh.handlers.FifoChannel(64)))
@@ -291,14 +293,12 @@ class RecorderService(Service):
         if self.session is not None and zenoh.KeyExpr(self.config.key_expr).intersects(zenoh.KeyExpr(own_key)):
             # only the recorder's own diagnostics still come in: its final counts (published below) are recorded
             with contextlib.suppress(Exception):
-                own = self.session.declare_subscriber(own_key, self._enqueue)
+                own = self._subscribe(own_key)
         try:
             self._record_in_flight(subs)
         finally:
             self._release_senders.set()
-        for s in subs:
-            with contextlib.suppress(Exception):
-                s.undeclare()
+        self._unsubscribe(subs)
         try:
             try:
                 while self._take(_BATCH):
@@ -309,8 +309,7 @@ class RecorderService(Service):
                     self._record_own_diagnostics(own_key)
             finally:
                 if own is not None:
-                    with contextlib.suppress(Exception):
-                        own.undeclare()
+                    self._unsubscribe([own])
             while self._take(_BATCH):
                 pass
             self._await_services()
