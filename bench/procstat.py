@@ -11,7 +11,7 @@ ZENOH_RUNTIME = ("rx-", "tx-", "net-", "acc-", "app-")
 #: what each group of :func:`thread_cpu` holds, for table labels
 THREAD_GROUPS = {
     "loop": "its own thread",
-    "callback": "Zenoh's Python-callback thread",
+    "callback": "the delivery thread (or Zenoh's Python-callback thread)",
     "runtime": "Zenoh's network threads",
 }
 
