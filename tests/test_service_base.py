@@ -40,21 +40,26 @@ class DepthEcho(Service):
         return [Output(OUT_KEY, msg)]
 
 
-@pytest.fixture()
-def running(router: str) -> Iterator[tuple[DepthEcho, zenoh.Session]]:
-    zs = ZenohSettings(mode="client", connect=[router])
-    svc = DepthEcho(ServiceSettings(instance="t1"), zs)
+def _start(svc: Service, router: str) -> tuple[threading.Thread, zenoh.Session]:
+    """Run ``svc`` on a thread and wait for its liveliness token; returns the thread and a client session."""
     thread = threading.Thread(target=svc.run, daemon=True)
     thread.start()
-    client = open_session(zs)
-    alive = keys.alive("echo_test", "t1")
+    client = open_session(ZenohSettings(mode="client", connect=[router]))
+    alive = keys.alive(svc.name, svc.instance)
     assert wait_until(lambda: len(list(client.liveliness().get(alive, timeout=0.5))) == 1)
+    return thread, client
+
+
+@pytest.fixture()
+def running(router: str) -> Iterator[tuple[DepthEcho, zenoh.Session]]:
+    svc = DepthEcho(ServiceSettings(instance="t1"), ZenohSettings(mode="client", connect=[router]))
+    thread, client = _start(svc, router)
     yield svc, client
     svc.stop()
     thread.join(timeout=10)
     assert not thread.is_alive()
     # the liveliness token is gone once the service stopped
-    assert wait_until(lambda: len(list(client.liveliness().get(alive, timeout=0.5))) == 0)
+    assert wait_until(lambda: len(list(client.liveliness().get(keys.alive(svc.name, svc.instance), timeout=0.5))) == 0)
     client.close()
 
 
@@ -169,13 +174,8 @@ class FlakyDelivery(DepthEcho):
 def test_a_delivery_thread_outlives_a_failed_hand_over_and_ends_with_the_service(router: str) -> None:
     """Each subscription's samples reach the inbox through a delivery thread (Zenoh's FIFO, then ``try_recv``): a
     sample whose hand-over fails is logged and the next ones are delivered, and the threads end with the service."""
-    zs = ZenohSettings(mode="client", connect=[router])
-    svc = FlakyDelivery(ServiceSettings(instance="t2"), zs)
-    thread = threading.Thread(target=svc.run, daemon=True)
-    thread.start()
-    client = open_session(zs)
-    alive = keys.alive("flaky_test", "t2")
-    assert wait_until(lambda: len(list(client.liveliness().get(alive, timeout=0.5))) == 1)
+    svc = FlakyDelivery(ServiceSettings(instance="t2"), ZenohSettings(mode="client", connect=[router]))
+    thread, client = _start(svc, router)
     outputs: list[float] = []
     client.declare_subscriber(OUT_KEY, lambda s: outputs.append(codec.unpack(s.payload.to_bytes())["depth_m"]))
     pumps = list(svc._delivery.values())
