@@ -15,6 +15,9 @@ undefined, which flatters its own RMS), per phase, pooled and per file.
 
     ATTITUDE_BENCH_RUNS=100 python -m bench attitude_manoeuvre     # the runs per file (default 100)
     ATTITUDE_BENCH_PRESETS=paper,manoeuvre,manoeuvre_ca ...        # presets compared (the first is the base)
+    ATTITUDE_BENCH_FILES=attitude_turns_light,attitude_9s15 ...    # only these files (default: the family, 9s15)
+
+Presets ``onset_vjerk_0.3`` / ``onset_vjerk_0.1``: the default bank with the onset model's ``vertical_jerk_factor``.
 
 Seeds: ``fixstream mc``'s run seeds from seed 1 (the same plots for both presets: common random numbers).
 """
@@ -29,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from services.attitude.config import CA_MODELS
+from services.attitude.config import CA_MODELS, MANOEUVRE_MODELS, MotionModel
 from services.attitude.flights import FILES
 from services.attitude.metrics import MIN_LOAD_ROLL, STEADY_AFTER_S, phase_table
 from services.player.scenario import load_scenario
@@ -46,6 +49,21 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "manoeuvre": {"preset": "manoeuvre"},
     "manoeuvre_ca": {"preset": "manoeuvre", "imm_models": [m.model_dump(mode="json") for m in CA_MODELS]},
 }
+
+
+def onset_vertical(factor: float) -> list[dict[str, Any]]:
+    """The default bank with the onset model's vertical jerk std scaled by ``factor`` (``vertical_jerk_factor``)."""
+    return [
+        MotionModel.model_validate({**m.model_dump(), "vertical_jerk_factor": factor}).model_dump(mode="json")
+        if m.name == "onset"
+        else m.model_dump(mode="json")
+        for m in MANOEUVRE_MODELS
+    ]
+
+
+#: the default bank with a quieter vertical jerk in the onset model (docs/attitude.md, "The onset model's
+#: vertical jerk"): labels ``onset_vjerk_<factor>``
+VARIANTS.update({f"onset_vjerk_{k}": {"preset": "manoeuvre", "imm_models": onset_vertical(k)} for k in (0.3, 0.1)})
 PHASES = ("turn", "manoeuvre", "straight", "steady")
 SEED = 1
 
@@ -162,7 +180,9 @@ def main() -> None:
     runs = int(os.environ.get("ATTITUDE_BENCH_RUNS", "100"))
     workers = int(os.environ.get("ATTITUDE_BENCH_WORKERS", "1"))
     presets = tuple(os.environ.get("ATTITUDE_BENCH_PRESETS", ",".join(PRESETS)).split(","))
-    files = [*FILES, "attitude_9s15"]
+    chosen = os.environ.get("ATTITUDE_BENCH_FILES")
+    files = chosen.split(",") if chosen else [*FILES, "attitude_9s15"]
+    family_files = [n for n in FILES if n in files]
     results: dict[str, dict[str, Any]] = {}
     records: dict[str, list[dict[str, Any]]] = {}
     t0 = time.perf_counter()
@@ -172,7 +192,7 @@ def main() -> None:
     rows: list[list[Any]] = []
     figures: dict[str, Any] = {"runs_per_file": runs, "seed": SEED, "seconds": time.perf_counter() - t0}
     for preset in presets:
-        family = [results[f"{name}/{preset}"] for name in FILES]
+        family = [results[f"{name}/{preset}"] for name in family_files]
         pooled = phase_table([s for agg in family for s in agg["phase_samples"]])
         core: dict[str, int] = {}
         for agg in family:
@@ -189,7 +209,7 @@ def main() -> None:
     prows: list[list[Any]] = []
     base = presets[0]
     for preset in presets[1:]:
-        for label, names in [("family", list(FILES)), *[(n.removeprefix("attitude_"), [n]) for n in files]]:
+        for label, names in [("family", family_files), *[(n.removeprefix("attitude_"), [n]) for n in files]]:
             pa = paired(
                 [r for n in names for r in records[f"{n}/{base}"]],
                 [r for n in names for r in records[f"{n}/{preset}"]],

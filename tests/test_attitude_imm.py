@@ -11,6 +11,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from schemas import Header, RadarPlot
 from services.attitude import imm
@@ -19,7 +21,7 @@ from services.attitude.core import AttitudeCore
 from services.attitude.filter import predict, update
 from services.attitude.geometry import convert_plot
 from services.attitude.initiation import fsf_estimate
-from services.attitude.models import singer_axis, transition
+from services.attitude.models import process_noise, singer_axis, transition
 from services.attitude.simulation import NS, fly, measure, paper_plan, scan_times
 
 CA = MotionModel(name="ca", kind="ca", sigma_jerk_mps3=0.03, sojourn_s=100.0)
@@ -185,6 +187,52 @@ def test_singer_model_limits() -> None:
     f4, q4 = singer_axis(7.5, 0.2, 20.0)
     assert f3 == pytest.approx(f4 @ f4, rel=1e-12) and q3 == pytest.approx(f4 @ q4 @ f4.T + q4, rel=1e-9)
     assert np.linalg.eigvalsh(q2).min() > -1e-9
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    dt=st.floats(0.1, 20.0),
+    sigma_j=st.floats(0.01, 5.0),
+    k=st.floats(0.0, 10.0),
+)
+def test_vertical_jerk_factor_scales_only_the_vertical_block(dt: float, sigma_j: float, k: float) -> None:
+    """A ca model's Q with vertical_jerk_factor k is M = S^T D S with D = diag(s^2, (k s)^2, s^2) over E [north, up,
+    east]: a jerk held constant over the step enters each axis as g = [dt^3/6, dt^2/2, dt], so Q = blkdiag(D_c g g^T)
+    in the axis-blocked state; k touches only the y (up) block, and k = 1 leaves Q bit-identical."""
+    iso = MotionModel(name="onset", kind="ca", sigma_jerk_mps3=sigma_j, sojourn_s=20.0)
+    aniso = MotionModel(name="onset", kind="ca", sigma_jerk_mps3=sigma_j, vertical_jerk_factor=k, sojourn_s=20.0)
+    g = np.array([dt**3 / 6.0, dt**2 / 2.0, dt])
+    d = [sigma_j**2, (k * sigma_j) ** 2, sigma_j**2]
+    closed = np.zeros((9, 9))
+    for c in range(3):
+        closed[3 * c : 3 * c + 3, 3 * c : 3 * c + 3] = d[c] * np.outer(g, g)
+    f1, q1 = imm.model_matrices(iso, dt)
+    fk, qk = imm.model_matrices(aniso, dt)
+    assert np.array_equal(fk, f1)
+    scale = max(1.0, float(np.abs(closed).max()))
+    assert np.abs(qk - closed).max() <= 1e-12 * scale
+    up = np.zeros(9, dtype=bool)
+    up[3:6] = True
+    assert np.array_equal(qk[~up][:, ~up], q1[~up][:, ~up])  # the horizontal blocks: the same bits
+    assert not qk[up][:, ~up].any() and not qk[~up][:, up].any()  # no cross-axis terms
+    one = MotionModel(name="onset", kind="ca", sigma_jerk_mps3=sigma_j, vertical_jerk_factor=1.0, sojourn_s=20.0)
+    assert np.array_equal(imm.model_matrices(one, dt)[1], q1)
+    # the isotropic model's Q, bit for bit, as before the factor existed: process_noise with D = (s^2, s^2, s^2)
+    assert np.array_equal(q1, process_noise(dt, (sigma_j**2,) * 3))
+
+
+def test_vertical_jerk_factor_is_the_ca_models_only() -> None:
+    """The default is 1 (isotropic jerk, the paper's model), left out of a dump; a Singer or CT model refuses any
+    other value."""
+    assert all(m.vertical_jerk_factor == 1.0 for m in (*CA_MODELS, *MANOEUVRE_MODELS))
+    onset = MANOEUVRE_MODELS[-1]  # echoed outputs keep their old form at the default, and a dump reads back
+    assert "vertical_jerk_factor" not in onset.model_dump() and "vertical_jerk_factor" not in onset.model_dump_json()
+    quiet = MotionModel.model_validate({**onset.model_dump(), "vertical_jerk_factor": 0.1})
+    assert quiet.model_dump()["vertical_jerk_factor"] == 0.1
+    assert MotionModel.model_validate_json(quiet.model_dump_json()) == quiet
+    assert MotionModel.model_validate(onset.model_dump()) == onset
+    with pytest.raises(ValueError, match="vertical_jerk_factor"):
+        MotionModel(name="s", kind="singer", sigma_accel_mps2=0.2, tau_s=1.0, sojourn_s=200.0, vertical_jerk_factor=0.3)
 
 
 def test_model_probabilities_follow_a_turn() -> None:

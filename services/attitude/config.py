@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, model_serializer, model_validator
 
 RadarPreset = Literal["9S15", "Vostok3D", "19Zh6"]
 
@@ -46,7 +46,8 @@ class MotionModel(BaseModel):
     rate omega in a bank with a ``ct`` model, imm.py).
 
     * ``ca``: the paper's constant-acceleration model driven by random jerk (eq. 3, M = S^T D S) of standard
-      deviation ``sigma_jerk_mps3`` (m/s^3);
+      deviation ``sigma_jerk_mps3`` (m/s^3) on the horizontal axes (x north, z east) and
+      ``vertical_jerk_factor * sigma_jerk_mps3`` on the vertical one (y up; 1: the paper's isotropic jerk);
     * ``singer``: the acceleration is mean-reverting (first-order Markov, correlation time ``tau_s``) with
       stationary standard deviation ``sigma_accel_mps2``: non-manoeuvring flight, whose acceleration wanders
       about zero (turbulence, pilot corrections) instead of drifting like the CA model's random walk;
@@ -67,6 +68,12 @@ class MotionModel(BaseModel):
         description="ca: random jerk (eq. 3); singer: mean-reverting acceleration; ct: nearly coordinated turn"
     )
     sigma_jerk_mps3: float | None = Field(default=None, ge=0.0, le=100.0, description="ca: jerk std, m/s^3")
+    vertical_jerk_factor: float = Field(
+        default=1.0,
+        ge=0.0,
+        le=10.0,
+        description="ca: the vertical axis's (y, up) jerk std is this times sigma_jerk_mps3 (1: isotropic jerk)",
+    )
     sigma_accel_mps2: float | None = Field(
         default=None,
         gt=0.0,
@@ -98,9 +105,20 @@ class MotionModel(BaseModel):
             self.sigma_accel_mps2 is None or self.tau_s is None or self.sigma_jerk_mps3 is not None
         ):
             raise ValueError(f"a {self.kind} model takes sigma_accel_mps2 and tau_s (and no sigma_jerk_mps3)")
+        if self.kind != "ca" and self.vertical_jerk_factor != 1.0:
+            raise ValueError("vertical_jerk_factor is the ca model's (and only its)")
         if (self.kind == "ct") != (self.sigma_turn_rate_dps is not None):
             raise ValueError("sigma_turn_rate_dps is the ct model's (and only its) turn-rate noise")
         return self
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """The dump leaves out ``vertical_jerk_factor`` at its default 1, so configurations echoed in outputs
+        (``fixstream mc``'s JSON) stay as they were before the field existed; it reads back as the default."""
+        out: dict[str, Any] = handler(self)
+        if self.vertical_jerk_factor == 1.0:
+            out.pop("vertical_jerk_factor", None)
+        return out
 
     @property
     def q_omega(self) -> float:

@@ -62,11 +62,14 @@ from .models import OMEGA, POS, block_diagonal, ct_predict, ct_step, process_noi
 
 @lru_cache(maxsize=1024)
 def model_matrices(model: MotionModel, dt_s: float) -> tuple[F64, F64]:
-    """(F, Q) (9x9, read-only) of one motion model over dt_s: CA (B, M = S^T D S) or Singer (Van Loan)."""
+    """(F, Q) (9x9, read-only) of one motion model over dt_s: CA (B, M = S^T D S, D = diag(sigma_j^2, (k sigma_j)^2,
+    sigma_j^2) with k = ``vertical_jerk_factor``) or Singer (Van Loan)."""
     if model.kind == "ca":
         assert model.sigma_jerk_mps3 is not None
+        # D_a = diag(sigma_j^2, (k sigma_j)^2, sigma_j^2) in E [north, up, east]; k = 1 multiplies exactly
         d = model.sigma_jerk_mps3**2
-        f, q = transition(dt_s), process_noise(dt_s, (d, d, d))
+        d_up = (model.vertical_jerk_factor * model.sigma_jerk_mps3) ** 2
+        f, q = transition(dt_s), process_noise(dt_s, (d, d_up, d))
     else:
         assert model.sigma_accel_mps2 is not None and model.tau_s is not None
         fa, qa = singer_axis(abs(dt_s), model.sigma_accel_mps2, model.tau_s)
