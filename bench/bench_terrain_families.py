@@ -31,7 +31,7 @@ import itertools
 import json
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -190,6 +190,17 @@ def run_family(
     return {p: t.row() for p, t in tallies.items()}
 
 
+def navigator_outputs(nav: TerrainNavigator, msgs: Iterable[Any]) -> Iterator[Any]:
+    """Every output of ``nav`` over ``msgs``, in order; an input the navigator rejects yields nothing. A generator:
+    at each output, ``nav`` is as it stands right after the input that made it (its window, its map)."""
+    for msg in msgs:
+        try:
+            out = nav.step(msg)
+        except InputRejected:
+            continue
+        yield from out
+
+
 def score_run(flight, msgs, cfg: TerrainNavConfig, t: Tally, turn: bool, posterior: bool = True) -> None:  # type: ignore[no-untyped-def]
     nav = TerrainNavigator(flight.world.ref_map, cfg)
     cell = flight.cell_m
@@ -198,63 +209,58 @@ def score_run(flight, msgs, cfg: TerrainNavConfig, t: Tally, turn: bool, posteri
     first_fix = None
     first_post_ok = None
     horizon = 40.0 * (flight.cell_m / 125.0 if flight.cell_m > 125.0 else 1.0)
-    for msg in msgs:
-        try:
-            out = nav.step(msg)
-        except InputRejected:
+    for m in navigator_outputs(nav, msgs):
+        if isinstance(m, TerrainFix):
+            ts = m.header.stamp_ns * 1e-9
+            d = flight.truth_at(ts)
+            ex, ez = (m.dx_m - d["dx"]) / cell, (m.dz_m - d["dz"]) / cell
+            e = max(abs(ex), abs(ez))
+            errs.append(e)
+            first_fix = ts if first_fix is None else first_fix
+            err = np.array([m.dx_m - d["dx"], m.dz_m - d["dz"]])
+            nees = float(err @ np.linalg.solve(np.array(m.estimate.covariance), err))
+            win = nav.window.measq
+            if turn:
+                w = list(win)
+                heading = [math.atan2(q.z_mean - p.z_mean, q.x_mean - p.x_mean) for p, q in itertools.pairwise(w)]
+                turning = bool(heading) and (max(heading) - min(heading)) > math.radians(10.0)
+            else:
+                turning = False
+            (t.nees_turn if turning else t.nees_straight).append(nees)
+            dh = m.vertical.index("dh")
+            if abs(m.vertical.mean[dh] - d["dh"]) <= 3.0 * math.sqrt(m.vertical.covariance[dh][dh]):
+                t.vert_in += 1
+            if m.verdict.n_valid >= m.verdict.n_max:
+                t.vert_err_full.append(abs(m.vertical.mean[dh] - d["dh"]))
             continue
-        for m in out:
-            if isinstance(m, TerrainFix):
-                ts = m.header.stamp_ns * 1e-9
-                d = flight.truth_at(ts)
-                ex, ez = (m.dx_m - d["dx"]) / cell, (m.dz_m - d["dz"]) / cell
-                e = max(abs(ex), abs(ez))
-                errs.append(e)
-                first_fix = ts if first_fix is None else first_fix
-                err = np.array([m.dx_m - d["dx"], m.dz_m - d["dz"]])
-                nees = float(err @ np.linalg.solve(np.array(m.estimate.covariance), err))
-                win = nav.window.measq
-                if turn:
-                    w = list(win)
-                    heading = [math.atan2(q.z_mean - p.z_mean, q.x_mean - p.x_mean) for p, q in itertools.pairwise(w)]
-                    turning = bool(heading) and (max(heading) - min(heading)) > math.radians(10.0)
+        if not isinstance(m, TerrainVerdict):
+            continue
+        state = m.state
+        if (
+            first_fix is None
+            and state in ("ACQUIRING", "NO_FIX_FIT", "NO_FIX_AMBIGUOUS", "NO_FIX_UNSTABLE")
+            and m.header.stamp_ns * 1e-9 - flight.t0_s <= horizon
+        ):
+            t.blocked_by[state] = t.blocked_by.get(state, 0) + 1
+        if posterior and m.c1_enough_data and m.state != "RESET":
+            post = exact_posterior(list(nav.window.measq), nav.map, cfg, nav.D1)
+            newest = nav.window.measq[-1]
+            d = flight.truth_at(newest.t)
+            it = math.floor((newest.x_mean + d["dx"] - nav.map.x0_m) / cell) - newest.I
+            jt = math.floor((newest.z_mean + d["dz"] - nav.map.z0_m) / cell) - newest.J
+            i, j = post.argmax
+            t.post_evals += 1
+            if post.decisive():
+                if max(abs(i - it), abs(j - jt)) <= 1:
+                    t.post_decisive_correct += 1
+                    t.taken += bool(m.valid)
+                    if first_post_ok is None:
+                        first_post_ok = newest.t
+                    if not m.valid:
+                        for c, ok in (("C2", m.c2_fit), ("C3", m.c3_unique), ("C4", m.c4_stable)):
+                            t.missed_c[c] = t.missed_c.get(c, 0) + (not ok)
                 else:
-                    turning = False
-                (t.nees_turn if turning else t.nees_straight).append(nees)
-                dh = m.vertical.index("dh")
-                if abs(m.vertical.mean[dh] - d["dh"]) <= 3.0 * math.sqrt(m.vertical.covariance[dh][dh]):
-                    t.vert_in += 1
-                if m.verdict.n_valid >= m.verdict.n_max:
-                    t.vert_err_full.append(abs(m.vertical.mean[dh] - d["dh"]))
-                continue
-            if not isinstance(m, TerrainVerdict):
-                continue
-            state = m.state
-            if (
-                first_fix is None
-                and state in ("ACQUIRING", "NO_FIX_FIT", "NO_FIX_AMBIGUOUS", "NO_FIX_UNSTABLE")
-                and m.header.stamp_ns * 1e-9 - flight.t0_s <= horizon
-            ):
-                t.blocked_by[state] = t.blocked_by.get(state, 0) + 1
-            if posterior and m.c1_enough_data and m.state != "RESET":
-                post = exact_posterior(list(nav.window.measq), nav.map, cfg, nav.D1)
-                newest = nav.window.measq[-1]
-                d = flight.truth_at(newest.t)
-                it = math.floor((newest.x_mean + d["dx"] - nav.map.x0_m) / cell) - newest.I
-                jt = math.floor((newest.z_mean + d["dz"] - nav.map.z0_m) / cell) - newest.J
-                i, j = post.argmax
-                t.post_evals += 1
-                if post.decisive():
-                    if max(abs(i - it), abs(j - jt)) <= 1:
-                        t.post_decisive_correct += 1
-                        t.taken += bool(m.valid)
-                        if first_post_ok is None:
-                            first_post_ok = newest.t
-                        if not m.valid:
-                            for c, ok in (("C2", m.c2_fit), ("C3", m.c3_unique), ("C4", m.c4_stable)):
-                                t.missed_c[c] = t.missed_c.get(c, 0) + (not ok)
-                    else:
-                        t.post_decisive_wrong += 1
+                    t.post_decisive_wrong += 1
     t.fixes += len(errs)
     nf = sum(e > 1.0 for e in errs)
     t.false += nf

@@ -245,37 +245,32 @@ def score_bound(
 ) -> None:
     """Run the navigator over the flight; at each fix with N_valid >= N_max, its dh error and the bounds
     (``cache``: bounds already computed for this flight, by window and fix time)."""
+    from bench.bench_terrain_families import navigator_outputs
     from schemas.terrain_nav import TerrainFix
     from services.terrain_nav.core import TerrainNavigator
-    from shared.errors import InputRejected
 
     nav = TerrainNavigator(flight.world.ref_map, cfg)
     t_start = float(flight.t[0])
     variants = bound_variants(flight.scenario)
     if cache is None:
         cache = {}
-    for msg in msgs:
-        try:
-            out = nav.step(msg)
-        except InputRejected:
+    for m in navigator_outputs(nav, msgs):
+        if not isinstance(m, TerrainFix) or m.verdict.n_valid < m.verdict.n_max:
             continue
-        for m in out:
-            if not isinstance(m, TerrainFix) or m.verdict.n_valid < m.verdict.n_max:
-                continue
-            t_fix = m.header.stamp_ns * 1e-9
-            dh = m.vertical.index("dh")
-            t.err.append(m.vertical.mean[dh] - flight.truth_at(t_fix)["dh"])
-            measq = nav.window.measq
-            t_first, t_last = measq[0].t_first, measq[-1].t_last
-            key = (t_first, t_last, t_fix, to_date)
-            if key not in cache:  # the same fix of another preset over the same flight
-                cache[key] = fix_bounds(flight, t_first, t_last, t_fix, variants)
-                if to_date:
-                    got_to_date = fix_bounds(flight, t_start, t_last, t_fix, {"b": variants["bayes"]})["b"]
-                    cache[key] |= {"to_date_bayes": got_to_date}
-            got = cache[key]
-            for k, v in got.items():
-                t.bounds.setdefault(k, []).append(v)
+        t_fix = m.header.stamp_ns * 1e-9
+        dh = m.vertical.index("dh")
+        t.err.append(m.vertical.mean[dh] - flight.truth_at(t_fix)["dh"])
+        measq = nav.window.measq
+        t_first, t_last = measq[0].t_first, measq[-1].t_last
+        key = (t_first, t_last, t_fix, to_date)
+        if key not in cache:  # the same fix of another preset over the same flight
+            cache[key] = fix_bounds(flight, t_first, t_last, t_fix, variants)
+            if to_date:
+                got_to_date = fix_bounds(flight, t_start, t_last, t_fix, {"b": variants["bayes"]})["b"]
+                cache[key] |= {"to_date_bayes": got_to_date}
+        got = cache[key]
+        for k, v in got.items():
+            t.bounds.setdefault(k, []).append(v)
 
 
 def run(
