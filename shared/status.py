@@ -3,7 +3,7 @@
 Every fixstream service declares ``fixstream/alive/<service>/<instance>`` (a liveliness token) and answers
 ``fixstream/status/<service>/<instance>`` with a JSON document (:meth:`shared.service.Service.status`). The recorder
 asks them all when a run starts (its metadata), and ``fixstream up`` asks them after its driver ends, to stop the
-stack only once it has settled (:func:`settled`).
+stack only once it has settled (:func:`quiet_counts`).
 """
 
 from __future__ import annotations
@@ -52,6 +52,11 @@ class AliveTokens:
             return set(self._alive)
 
 
+def owner(doc: Mapping[str, Any]) -> str:
+    """``<service>/<instance>`` of a status document."""
+    return f"{doc.get('service', '?')}/{doc.get('instance', '?')}"
+
+
 def collect_statuses(
     session: zenoh.Session,
     timeout_s: float,
@@ -78,7 +83,7 @@ def collect_statuses(
                     with contextlib.suppress(ValueError):
                         doc = json.loads(reply.ok.payload.to_bytes())
                         if isinstance(doc, dict):
-                            answered[f"{doc.get('service', '?')}/{doc.get('instance', '?')}"] = doc
+                            answered[owner(doc)] = doc
         alive = {a for a in alive if not a.startswith(PLAYER_PREFIX)}  # a player's token has no status queryable
         if alive <= answered.keys():
             break
@@ -92,7 +97,7 @@ def quiet_counts(statuses: Sequence[Mapping[str, Any]], expected: Iterable[str])
     between: the stack has settled."""
     counts: dict[str, int] = {}
     for doc in statuses:
-        who = f"{doc.get('service', '?')}/{doc.get('instance', '?')}"
+        who = owner(doc)
         scenario = doc.get("scenario")
         counters = doc.get("counters")
         if doc.get("queue_depth") != 0 or not isinstance(counters, dict):

@@ -163,6 +163,7 @@ def _service_args(argv: list[str]) -> list[str]:
 
 
 def _runs_service(argv: list[str]) -> bool:
+    """Whether ``argv`` is ``fixstream run <service> ...``."""
     args = _service_args(argv)
     return "run" in args and args.index("run") + 1 < len(args)
 
@@ -170,8 +171,8 @@ def _runs_service(argv: list[str]) -> bool:
 def _ready_key(spec: ServiceSpec, argv: list[str], env: Mapping[str, str]) -> str | None:
     if ALIVE_LABEL in spec.labels:
         return spec.labels[ALIVE_LABEL] or None
-    args = _service_args(argv)
     if _runs_service(argv):
+        args = _service_args(argv)
         name = args[args.index("run") + 1]
         instance = env.get(f"FIXSTREAM_{name.upper()}_INSTANCE") or env.get("FIXSTREAM_INSTANCE") or "*"
         return f"fixstream/alive/{name}/{instance}"

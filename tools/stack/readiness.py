@@ -66,12 +66,12 @@ class LivelinessWatch:
         (``<service>/<instance>``: the stack's own services) and from every live service that answered a status
         query of this watch before (a token with no status queryable, a test probe's, is not waited for). None:
         busy, an expected service silent, or no session."""
-        from shared.status import collect_statuses, quiet_counts
+        from shared.status import collect_statuses, owner, quiet_counts
 
         if self._session is None:
             return None
         statuses, alive = collect_statuses(self._session, timeout_s, attempts=1)
-        answered = {f"{d.get('service', '?')}/{d.get('instance', '?')}" for d in statuses}
+        answered = {owner(d) for d in statuses}
         waited = (set(alive) & self._answered) | (expected or set())
         self._answered |= answered
         return quiet_counts(statuses, waited)
