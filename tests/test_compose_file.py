@@ -78,6 +78,9 @@ def test_stack_services_follow_the_conventions() -> None:
         assert svc["environment"]["FIXSTREAM_ZENOH_CONNECT"] == "tcp/router:7447", name
         assert "router" in svc["depends_on"], name
     assert services["recorder"]["environment"]["FIXSTREAM_RECORDER_OUT_DIR"] == "/data/recordings"
+    # servers are started again by the engine when they die; the driver is a run and is not
+    restarts = {name: svc.get("restart", "no") for name, svc in services.items()}
+    assert restarts == {name: "no" if name in drivers else "unless-stopped" for name in services}, restarts
     assert services["recorder"]["volumes"][0].startswith(f"{REPO}/recordings:/data/recordings")
 
 

@@ -19,6 +19,7 @@ import json
 import os
 import re
 import shutil
+import signal
 import subprocess
 import threading
 import time
@@ -32,6 +33,7 @@ import yaml
 from conftest import REPO, fixstream_cmd, wait_until
 from samples_lbl_nav import EXAMPLES
 
+from shared import codec
 from shared.mcap_io import decode_record, decode_rejected, is_rejected, iter_records
 from shared.session import free_tcp_port
 from tools.stack.pki import IDENTITIES, ROUTER_ACL, Pki, make_pki
@@ -592,3 +594,125 @@ def test_two_stacks_side_by_side(images: str, tmp_path: Path) -> None:
         assert [m.event for *_, m in markers] == ["start", "end"], name
         published, recorded = recorded_against_end_marker(dirs[name], "pcl_tracker_demo")
         assert published > 0 and recorded == published, (name, published, recorded)
+
+
+def _holes(channels: dict[str, Channel]) -> tuple[int, dict[tuple[str, str], int]]:
+    """Messages missing from the recording by their publishers' own seq: per (key, source), the seqs between the
+    first and the last recorded that are not in the file, counting a payload the recorder refused (kept on
+    ``fixstream/rejected/<key>``) as recorded. Returns (the total, the pairs with holes)."""
+    seqs: dict[tuple[str, str], set[int]] = defaultdict(set)
+    for topic, messages in channels.items():
+        for *_, m in messages:
+            if topic.startswith("fixstream/rejected/"):
+                key, _, _, payload = m
+                head = codec.peek_header(payload)
+                if head is not None:
+                    seqs[(key, head[0])].add(head[1])
+            else:
+                seqs[(topic, m.header.source)].add(m.header.seq)
+    holes = {pair: max(s) - min(s) + 1 - len(s) for pair, s in seqs.items()}
+    holes = {pair: n for pair, n in holes.items() if n}
+    return sum(holes.values()), holes
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(1800)
+def test_a_detached_stack_rides_out_a_router_crash_and_counts_what_it_lost(images: str, tmp_path: Path) -> None:
+    """``docker compose up -d``, the demo at its real pace (60 s). Once the recorder has 1,000 messages, the router
+    container's init is killed from the host (SIGKILL: a crash, not a stop). Its restart policy starts it again
+    (a new process, maybe a new address behind the same name on the compose network); every service reconnects by
+    itself and answers ``fixstream status`` again, the player ends with 0, every estimator publishes after the
+    crash, the recorder exits 0 when stopped, and its loss count (its last ``seq_gap`` diagnostic, from the
+    publishers' own seq) is exactly the holes in the recording: what was published while no router routed it is
+    lost, and counted where it was lost."""
+    from container_support import docker_api, healthcheck_driver, run
+
+    recordings = _writable_dir(tmp_path / "containers")
+    port = free_tcp_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    env = clean_env(
+        FIXSTREAM_IMAGE=images,
+        FIXSTREAM_RECORDINGS=str(recordings),
+        FIXSTREAM_ROUTER_PORT=str(port),
+        FIXSTREAM_SCENARIO="scenarios/demo.yaml",
+        FIXSTREAM_RATE="1",
+    )
+    project = re.sub(r"[^a-z0-9_-]", "", f"fixstream-crash-{os.getpid()}-{tmp_path.name[-12:].lower()}")
+    client_env = clean_env()
+
+    def statuses() -> dict[str, dict[str, Any]]:
+        done = subprocess.run(
+            fixstream_cmd("status", "--json", "--connect", endpoint, "--connect-timeout", "5"),
+            cwd=REPO,
+            env=client_env,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        docs = [json.loads(line) for line in done.stdout.splitlines() if line.startswith("{")]
+        return {f"fixstream/alive/{d['service']}/{d['instance']}": d for d in docs}
+
+    def all_alive() -> bool:
+        return set(DEMO_TOKENS) <= set(statuses())
+
+    with docker_api() as host:
+        api_env = {**env, "DOCKER_HOST": host}
+        base = ["docker-compose", "-p", project, "-f", str(COMPOSE), "-f", str(ROUTER_OVERRIDE)]
+
+        def container(service: str) -> str:
+            ids = run([*base, "ps", "-q", service], timeout=120, env=api_env, cwd=REPO).stdout.split()
+            assert len(ids) == 1, (service, ids)
+            return ids[0]
+
+        def inspect(cid: str, fmt: str) -> str:
+            return run(["podman", "inspect", "--format", fmt, cid], timeout=60).stdout.strip()
+
+        try:
+            with healthcheck_driver(project):
+                up = run([*base, "up", "-d", "--no-build", "--no-color"], timeout=600, env=api_env, cwd=REPO)
+                assert up.returncode == 0, up.stderr[-3000:]
+                assert wait_until(all_alive, timeout=300, interval=1.0), sorted(statuses())
+            recorder = "fixstream/alive/recorder/main"
+            assert wait_until(
+                lambda: statuses().get(recorder, {}).get("counters", {}).get("received", 0) >= 1000,
+                timeout=120,
+                interval=0.5,
+            ), "the player did not start"
+            router = container("router")
+            pid = int(inspect(router, "{{.State.Pid}}"))
+            t0 = time.monotonic()
+            os.kill(pid, signal.SIGKILL)
+            assert wait_until(
+                lambda: inspect(router, "{{.State.Status}} {{.RestartCount}}") == "running 1", timeout=60
+            ), inspect(router, "{{.State.Status}} {{.RestartCount}}")
+            assert wait_until(all_alive, timeout=60, interval=1.0), (
+                "not every service came back after the router's crash",
+                sorted(set(DEMO_TOKENS) - set(statuses())),
+            )
+            back = time.monotonic() - t0
+            player = container("player")
+            assert run(["podman", "wait", player], timeout=300).stdout.strip() == "0"
+            recorder_id = container("recorder")
+            stop = run([*base, "stop"], timeout=300, env=api_env, cwd=REPO)
+            assert stop.returncode == 0, stop.stderr[-3000:]
+            assert inspect(recorder_id, "{{.State.ExitCode}}") == "0"
+            logs = run([*base, "logs", "--no-color"], timeout=120, env=api_env, cwd=REPO).stdout
+        finally:
+            run([*base, "down", "--remove-orphans", "--timeout", "5"], timeout=300, env=api_env, cwd=REPO)
+    assert "Traceback" not in logs, logs[-5000:]
+    channels = recording(recordings)
+    markers = [m for *_, m in channels["fixstream/scenario/demo"]]
+    assert [m.event for m in markers] == ["start", "end"]
+    end_ns = markers[1].header.stamp_ns
+    for topic in DEMO_OUTPUTS[:-2]:  # every estimator goes on after the crash
+        stamps = [m.header.stamp_ns for *_, m in channels.get(topic, [])]
+        assert stamps and stamps[-1] >= end_ns - 10_000_000_000, (topic, stamps[-1:], end_ns)
+    missing, pairs = _holes(channels)
+    diags = [m for *_, m in channels.get("fixstream/diag/recorder/main", []) if m.reason == "seq_gap"]
+    counted = diags[-1].counts["lost"] if diags else 0
+    assert missing > 0, "the crash lost nothing: the router was not down while the player published"
+    assert counted == missing, (counted, missing, sorted(pairs.items())[:20])
+    print(
+        f"router killed; every service back {back:.1f} s later; {missing} messages lost on {len(pairs)}"
+        f" (key, source) pairs, {counted} counted by the recorder"
+    )
