@@ -65,6 +65,13 @@ def clean_env(**extra: str) -> dict[str, str]:
     return env
 
 
+def stack_env(image: str, recordings: Path, port: int, **extra: str) -> dict[str, str]:
+    """The variables of a compose run of the project image into ``recordings``, its router on host port ``port``."""
+    return clean_env(
+        FIXSTREAM_IMAGE=image, FIXSTREAM_RECORDINGS=str(recordings), FIXSTREAM_ROUTER_PORT=str(port), **extra
+    )
+
+
 def recording(directory: Path) -> dict[str, Channel]:
     """The only MCAP file in ``directory``: per topic, (schema, encoding, publish_time, sequence, message)."""
     files = sorted(directory.glob("*.mcap"))
@@ -241,10 +248,10 @@ def run_in_containers(
 
     recordings = _writable_dir(tmp_path / "containers")
     port = free_tcp_port()
-    full_env = clean_env(
-        FIXSTREAM_IMAGE=image,
-        FIXSTREAM_RECORDINGS=str(recordings),
-        FIXSTREAM_ROUTER_PORT=str(port),
+    full_env = stack_env(
+        image,
+        recordings,
+        port,
         FIXSTREAM_SCENARIO=scenario,
         FIXSTREAM_RATE="0",
         **env,
@@ -350,10 +357,10 @@ def test_secure_containers_record_every_estimator_and_refuse_what_is_not_theirs(
     recordings = _writable_dir(tmp_path / "containers")
     port = free_tcp_port()
     endpoint = f"tls/127.0.0.1:{port}"
-    env = clean_env(
-        FIXSTREAM_IMAGE=images,
-        FIXSTREAM_RECORDINGS=str(recordings),
-        FIXSTREAM_ROUTER_PORT=str(port),
+    env = stack_env(
+        images,
+        recordings,
+        port,
         FIXSTREAM_PKI=str(pki.directory),
         FIXSTREAM_ROUTER_RUST_LOG=ACL_LOG_FILTER,
     )
@@ -537,10 +544,10 @@ def test_a_late_recorder_never_ends_in_an_empty_recording_and_exit_0(images: str
     from container_support import compose_up, docker_api
 
     recordings = _writable_dir(tmp_path / "containers")
-    env = clean_env(
-        FIXSTREAM_IMAGE=images,
-        FIXSTREAM_RECORDINGS=str(recordings),
-        FIXSTREAM_ROUTER_PORT=str(free_tcp_port()),
+    env = stack_env(
+        images,
+        recordings,
+        free_tcp_port(),
         FIXSTREAM_SCENARIO="scenarios/pcl_tracker_demo.yaml",
     )
     project = f"fixstream-late-{os.getpid()}-{delay_s}"
@@ -574,10 +581,10 @@ def test_two_stacks_side_by_side(images: str, tmp_path: Path) -> None:
     with docker_api() as host:
 
         def one(name: str) -> None:
-            env = clean_env(
-                FIXSTREAM_IMAGE=images,
-                FIXSTREAM_RECORDINGS=str(dirs[name]),
-                FIXSTREAM_ROUTER_PORT=str(free_tcp_port()),
+            env = stack_env(
+                images,
+                dirs[name],
+                free_tcp_port(),
                 FIXSTREAM_SCENARIO="scenarios/pcl_tracker_demo.yaml",
             )
             project = f"fixstream-side-{os.getpid()}-{name}"
@@ -630,10 +637,10 @@ def test_a_detached_stack_rides_out_a_router_crash_and_counts_what_it_lost(image
     recordings = _writable_dir(tmp_path / "containers")
     port = free_tcp_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    env = clean_env(
-        FIXSTREAM_IMAGE=images,
-        FIXSTREAM_RECORDINGS=str(recordings),
-        FIXSTREAM_ROUTER_PORT=str(port),
+    env = stack_env(
+        images,
+        recordings,
+        port,
         FIXSTREAM_SCENARIO="scenarios/demo.yaml",
         FIXSTREAM_RATE="1",
     )
