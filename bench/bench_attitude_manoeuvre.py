@@ -82,7 +82,9 @@ def vertical_model(sigma_jerk_mps3: float, factor: float, sojourn_s: float = 20.
 #: vertical jerk"): labels ``onset_vjerk_<factor>``
 VARIANTS.update({f"onset_vjerk_{k}": {"preset": "manoeuvre", "imm_models": onset_vertical(k)} for k in (0.3, 0.1)})
 #: the turn model's exit (docs/attitude.md, "A bank for turns and vertical manoeuvres"): a longer sojourn (exits
-#: unchanged), or an exit by heading change (``exit_heading_change_deg``, the sojourn its longest mean sojourn)
+#: unchanged), or an exit by heading change (``exit_heading_change_deg``, the sojourn its longest mean sojourn);
+#: ``_xs``: the turn exits to straight flight only
+_XS60 = {"exit_heading_change_deg": 90.0, "sojourn_s": 60.0, "exits_to": ["straight"]}
 TURN_EXITS: dict[str, dict[str, Any]] = {
     "turn60": {"sojourn_s": 60.0},
     "turn120": {"sojourn_s": 120.0},
@@ -91,23 +93,36 @@ TURN_EXITS: dict[str, dict[str, Any]] = {
         for d in (90, 150)
         for s in (60, 120)
     },
+    "dpsi90_max30": {"exit_heading_change_deg": 90.0, "sojourn_s": 30.0},
+    "xs": {"exits_to": ["straight"]},
+    "turn60_xs": {"sojourn_s": 60.0, "exits_to": ["straight"]},
+    "dpsi90_max30_xs": {"exit_heading_change_deg": 90.0, "sojourn_s": 30.0, "exits_to": ["straight"]},
+    "dpsi90_max60_xs": _XS60,
+    "dpsi150_max120_xs": {"exit_heading_change_deg": 150.0, "sojourn_s": 120.0, "exits_to": ["straight"]},
+    # the same with more turn-model noise (deviation sigma_a 0.5 m/s^2; turn-rate noise 0.2 deg/s per root s)
+    "dpsi90_max60_xs_a0.5": {**_XS60, "sigma_accel_mps2": 0.5},
+    "dpsi90_max60_xs_w0.2": {**_XS60, "sigma_turn_rate_dps": 0.2},
 }
-#: a ``vertical`` CA model: (horizontal jerk sigma, vertical factor), labelled by its vertical sigma (m/s^3) and,
-#: where it is not 0.1, its horizontal one (``h<sigma>``)
+#: a ``vertical`` CA model: (horizontal jerk sigma, vertical factor, sojourn), labelled by its vertical sigma
+#: (m/s^3) and, where they are not 0.1 and 20 s, its horizontal sigma (``h<sigma>``) and sojourn (``s<s>``)
 VERTICAL_MODELS = {
-    "1.0": (0.1, 10.0),
-    "0.5": (0.05, 10.0),
-    "1.5": (0.15, 10.0),
-    "2.0": (0.2, 10.0),
-    "1.0h0.3": (0.3, 10.0 / 3.0),
-    "2.0h0.5": (0.5, 4.0),
+    "1.0": (0.1, 10.0, 20.0),
+    "0.5": (0.05, 10.0, 20.0),
+    "1.5": (0.15, 10.0, 20.0),
+    "2.0": (0.2, 10.0, 20.0),
+    "1.0h0.3": (0.3, 10.0 / 3.0, 20.0),
+    "1.0h0.5": (0.5, 2.0, 20.0),
+    "1.5h0.3": (0.3, 5.0, 20.0),
+    "2.0h0.5": (0.5, 4.0, 20.0),
+    "1.0s10": (0.1, 10.0, 10.0),
+    "2.0s10": (0.2, 10.0, 10.0),
 }
 #: the onset model's vertical_jerk_factor in the four-model bank: 0.1 (no label) or 0.3 (``bank4o0.3``)
 ONSET_FACTORS = {"": 0.1, "o0.3": 0.3}
 #: labels ``turn_sojourn_<s>`` and ``turn_dpsi<d>_max<s>``: the default bank with the turn's exit changed
 VARIANTS.update(
     {
-        ("turn_sojourn_" + k.removeprefix("turn") if k.startswith("turn") else f"turn_{k}"): {
+        (f"turn_sojourn_{k.removeprefix('turn')}" if k.startswith("turn") else f"turn_{k}"): {
             "preset": "manoeuvre",
             "imm_models": bank({"turn": turn}),
         }
@@ -118,14 +133,14 @@ VARIANTS.update(
 #: ``vertical`` model appended (exits to any model; mu starts at the default rule's (0.9, 1/30, 1/30, 1/30)), and
 #: optionally the turn's exit of ``TURN_EXITS``
 for _o, _factor in ONSET_FACTORS.items():
-    for _v, (_s, _k) in VERTICAL_MODELS.items():
+    for _v, (_s, _k, _sojourn) in VERTICAL_MODELS.items():
         for _exit in (None, *TURN_EXITS):
             _changes: dict[str, dict[str, Any]] = {"onset": {"vertical_jerk_factor": _factor}}
             if _exit is not None:
                 _changes["turn"] = TURN_EXITS[_exit]
             VARIANTS[f"bank4{_o}_v{_v}" + ("" if _exit is None else f"_{_exit}")] = {
                 "preset": "manoeuvre",
-                "imm_models": bank(_changes, (vertical_model(_s, _k),)),
+                "imm_models": bank(_changes, (vertical_model(_s, _k, _sojourn),)),
             }
 PHASES = ("turn", "manoeuvre", "straight", "steady")
 SEED = 1
