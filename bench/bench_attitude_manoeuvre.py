@@ -129,6 +129,17 @@ VARIANTS.update(
         for k, turn in TURN_EXITS.items()
     }
 )
+#: the candidate turn exit with a shorter straight sojourn (more manoeuvre probability on straight legs, the
+#: turn ANEES's lever in "Why these values"): labels ``turn_dpsi90_max60_xs_straight<s>``
+VARIANTS.update(
+    {
+        f"turn_dpsi90_max60_xs_straight{s}": {
+            "preset": "manoeuvre",
+            "imm_models": bank({"turn": _XS60, "straight": {"sojourn_s": float(s)}}),
+        }
+        for s in (100, 150)
+    }
+)
 #: four models, labels ``bank4[o0.3]_v<vertical sigma>[_<turn exit>]``: the onset horizontal (k = 0.1, or 0.3), a
 #: ``vertical`` model appended (exits to any model; mu starts at the default rule's (0.9, 1/30, 1/30, 1/30)), and
 #: optionally the turn's exit of ``TURN_EXITS``
