@@ -17,7 +17,10 @@ undefined, which flatters its own RMS), per phase, pooled and per file.
     ATTITUDE_BENCH_PRESETS=paper,manoeuvre,manoeuvre_ca ...        # presets compared (the first is the base)
     ATTITUDE_BENCH_FILES=attitude_turns_light,attitude_9s15 ...    # only these files (default: the family, 9s15)
 
-Presets ``onset_vjerk_0.3`` / ``onset_vjerk_0.1``: the default bank with the onset model's ``vertical_jerk_factor``.
+Presets ``onset_vjerk_0.3`` / ``onset_vjerk_0.1``: the default bank with the onset model's ``vertical_jerk_factor``;
+``turn_sojourn_60`` / ``_120``: the turn model's sojourn; ``turn_dpsi<d>_max<s>``: its exit by heading change;
+``bank4_v<sigma>`` (and ``..._turn60``, ``..._dpsi150_max120``, ...): four models, a horizontal onset and a mostly
+vertical CA model (``VARIANTS``).
 
 Seeds: ``fixstream mc``'s run seeds from seed 1 (the same plots for both presets: common random numbers).
 """
@@ -51,19 +54,105 @@ VARIANTS: dict[str, dict[str, Any]] = {
 }
 
 
+def bank(changes: dict[str, dict[str, Any]], extra: tuple[dict[str, Any], ...] = ()) -> list[dict[str, Any]]:
+    """The default bank (``MANOEUVRE_MODELS``) with the fields in ``changes[name]`` replaced in model ``name``,
+    then the models ``extra`` appended, as the JSON a configuration takes (every model validated)."""
+    models = [{**m.model_dump(), **changes.get(m.name, {})} for m in MANOEUVRE_MODELS] + list(extra)
+    return [MotionModel.model_validate(m).model_dump(mode="json") for m in models]
+
+
 def onset_vertical(factor: float) -> list[dict[str, Any]]:
     """The default bank with the onset model's vertical jerk std scaled by ``factor`` (``vertical_jerk_factor``)."""
-    return [
-        MotionModel.model_validate({**m.model_dump(), "vertical_jerk_factor": factor}).model_dump(mode="json")
-        if m.name == "onset"
-        else m.model_dump(mode="json")
-        for m in MANOEUVRE_MODELS
-    ]
+    return bank({"onset": {"vertical_jerk_factor": factor}})
+
+
+def vertical_model(sigma_jerk_mps3: float, factor: float, sojourn_s: float = 20.0) -> dict[str, Any]:
+    """A ``vertical`` CA model: horizontal jerk std ``sigma_jerk_mps3``, vertical ``factor`` times it (pull-ups,
+    push-overs, climb entries and exits), exits to any model."""
+    return {
+        "name": "vertical",
+        "kind": "ca",
+        "sigma_jerk_mps3": sigma_jerk_mps3,
+        "vertical_jerk_factor": factor,
+        "sojourn_s": sojourn_s,
+    }
 
 
 #: the default bank with a quieter vertical jerk in the onset model (docs/attitude.md, "The onset model's
 #: vertical jerk"): labels ``onset_vjerk_<factor>``
 VARIANTS.update({f"onset_vjerk_{k}": {"preset": "manoeuvre", "imm_models": onset_vertical(k)} for k in (0.3, 0.1)})
+#: the turn model's exit (docs/attitude.md, "A bank for turns and vertical manoeuvres"): a longer sojourn (exits
+#: unchanged), or an exit by heading change (``exit_heading_change_deg``, the sojourn its longest mean sojourn);
+#: ``_xs``: the turn exits to straight flight only
+_XS60 = {"exit_heading_change_deg": 90.0, "sojourn_s": 60.0, "exits_to": ["straight"]}
+TURN_EXITS: dict[str, dict[str, Any]] = {
+    "turn60": {"sojourn_s": 60.0},
+    "turn120": {"sojourn_s": 120.0},
+    **{
+        f"dpsi{d}_max{s}": {"exit_heading_change_deg": float(d), "sojourn_s": float(s)}
+        for d in (90, 150)
+        for s in (60, 120)
+    },
+    "dpsi90_max30": {"exit_heading_change_deg": 90.0, "sojourn_s": 30.0},
+    "xs": {"exits_to": ["straight"]},
+    "turn60_xs": {"sojourn_s": 60.0, "exits_to": ["straight"]},
+    "dpsi90_max30_xs": {"exit_heading_change_deg": 90.0, "sojourn_s": 30.0, "exits_to": ["straight"]},
+    "dpsi90_max60_xs": _XS60,
+    "dpsi150_max120_xs": {"exit_heading_change_deg": 150.0, "sojourn_s": 120.0, "exits_to": ["straight"]},
+    # the same with more turn-model noise (deviation sigma_a 0.5 m/s^2; turn-rate noise 0.2 deg/s per root s)
+    "dpsi90_max60_xs_a0.5": {**_XS60, "sigma_accel_mps2": 0.5},
+    "dpsi90_max60_xs_w0.2": {**_XS60, "sigma_turn_rate_dps": 0.2},
+}
+#: a ``vertical`` CA model: (horizontal jerk sigma, vertical factor, sojourn), labelled by its vertical sigma
+#: (m/s^3) and, where they are not 0.1 and 20 s, its horizontal sigma (``h<sigma>``) and sojourn (``s<s>``)
+VERTICAL_MODELS = {
+    "1.0": (0.1, 10.0, 20.0),
+    "0.5": (0.05, 10.0, 20.0),
+    "1.5": (0.15, 10.0, 20.0),
+    "2.0": (0.2, 10.0, 20.0),
+    "1.0h0.3": (0.3, 10.0 / 3.0, 20.0),
+    "1.0h0.5": (0.5, 2.0, 20.0),
+    "1.5h0.3": (0.3, 5.0, 20.0),
+    "2.0h0.5": (0.5, 4.0, 20.0),
+    "1.0s10": (0.1, 10.0, 10.0),
+    "2.0s10": (0.2, 10.0, 10.0),
+}
+#: the onset model's vertical_jerk_factor in the four-model bank: 0.1 (no label) or 0.3 (``bank4o0.3``)
+ONSET_FACTORS = {"": 0.1, "o0.3": 0.3}
+#: labels ``turn_sojourn_<s>`` and ``turn_dpsi<d>_max<s>``: the default bank with the turn's exit changed
+VARIANTS.update(
+    {
+        (f"turn_sojourn_{k.removeprefix('turn')}" if k.startswith("turn") else f"turn_{k}"): {
+            "preset": "manoeuvre",
+            "imm_models": bank({"turn": turn}),
+        }
+        for k, turn in TURN_EXITS.items()
+    }
+)
+#: the candidate turn exit with a shorter straight sojourn (more manoeuvre probability on straight legs, the
+#: turn ANEES's lever in "Why these values"): labels ``turn_dpsi90_max60_xs_straight<s>``
+VARIANTS.update(
+    {
+        f"turn_dpsi90_max60_xs_straight{s}": {
+            "preset": "manoeuvre",
+            "imm_models": bank({"turn": _XS60, "straight": {"sojourn_s": float(s)}}),
+        }
+        for s in (100, 150)
+    }
+)
+#: four models, labels ``bank4[o0.3]_v<vertical sigma>[_<turn exit>]``: the onset horizontal (k = 0.1, or 0.3), a
+#: ``vertical`` model appended (exits to any model; mu starts at the default rule's (0.9, 1/30, 1/30, 1/30)), and
+#: optionally the turn's exit of ``TURN_EXITS``
+for _o, _factor in ONSET_FACTORS.items():
+    for _v, (_s, _k, _sojourn) in VERTICAL_MODELS.items():
+        for _exit in (None, *TURN_EXITS):
+            _changes: dict[str, dict[str, Any]] = {"onset": {"vertical_jerk_factor": _factor}}
+            if _exit is not None:
+                _changes["turn"] = TURN_EXITS[_exit]
+            VARIANTS[f"bank4{_o}_v{_v}" + ("" if _exit is None else f"_{_exit}")] = {
+                "preset": "manoeuvre",
+                "imm_models": bank(_changes, (vertical_model(_s, _k, _sojourn),)),
+            }
 PHASES = ("turn", "manoeuvre", "straight", "steady")
 SEED = 1
 

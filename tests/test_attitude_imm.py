@@ -235,6 +235,74 @@ def test_vertical_jerk_factor_is_the_ca_models_only() -> None:
         MotionModel(name="s", kind="singer", sigma_accel_mps2=0.2, tau_s=1.0, sojourn_s=200.0, vertical_jerk_factor=0.3)
 
 
+def heading_exit_bank(dpsi_deg: float, max_sojourn_s: float) -> tuple[MotionModel, ...]:
+    """The default bank with the turn's exit by heading change (mean dpsi_deg, longest mean sojourn max_sojourn_s)."""
+    return tuple(
+        MotionModel.model_validate({**m.model_dump(), "exit_heading_change_deg": dpsi_deg, "sojourn_s": max_sojourn_s})
+        if m.kind == "ct"
+        else m
+        for m in MANOEUVRE_MODELS
+    )
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    dt=st.floats(0.1, 30.0),
+    omega_dps=st.floats(-20.0, 20.0),
+    dpsi=st.floats(10.0, 360.0),
+    max_sojourn=st.floats(5.0, 600.0),
+    mu=st.lists(st.floats(0.01, 1.0), min_size=3, max_size=3),
+)
+def test_heading_change_exit_is_the_closed_form(
+    dt: float, omega_dps: float, dpsi: float, max_sojourn: float, mu: list[float]
+) -> None:
+    """A turn whose length in heading is exponential with mean dpsi survives a heading change h with probability
+    exp(-h / dpsi); at a turn rate omega over dt, h = |omega| dt. With the longest mean sojourn S as a floor on the
+    exit rate, p_turn,turn = min(exp(-|omega| dt / dpsi), exp(-dt / S)); the rest goes to the turn's exits_to
+    (straight, onset) equally, every other row is the time-sojourn chain's, and the IMM's predicted model
+    probabilities are mu pi with this pi."""
+    models = heading_exit_bank(dpsi, max_sojourn)
+    rng = np.random.default_rng(3)
+    state = imm.ImmState.start(rng.standard_normal(9) * 100.0, random_spd(rng), tuple(np.array(mu) / sum(mu)), models)
+    turn = 1
+    state.xs[turn, 9] = math.radians(omega_dps)
+    pi = imm.transition_matrix(state, models, dt)
+    stay = min(math.exp(-abs(omega_dps) * dt / dpsi), math.exp(-dt / max_sojourn))
+    assert pi[turn, turn] == pytest.approx(stay, rel=1e-12, abs=1e-300)
+    assert pi[turn, 0] == pytest.approx((1.0 - stay) / 2.0, rel=1e-12, abs=1e-15)
+    assert pi[turn, 2] == pi[turn, 0]
+    assert pi.sum(axis=1) == pytest.approx(np.ones(3), abs=1e-14)
+    plain = imm.transition_probabilities(models, dt)
+    assert np.array_equal(pi[[0, 2]], plain[[0, 2]])
+    # the turn's sign does not matter, and two steps at the same rate are one step of their sum (memoryless)
+    state.xs[turn, 9] = -state.xs[turn, 9]
+    assert imm.transition_matrix(state, models, dt)[turn, turn] == pi[turn, turn]
+    two = imm.transition_matrix(state, models, dt / 2.0)[turn, turn] ** 2
+    assert two == pytest.approx(pi[turn, turn], rel=1e-12, abs=1e-300)
+    c, _, _ = imm.predict(state, models, dt)
+    assert c == pytest.approx(state.mu @ pi, rel=1e-12, abs=1e-300)
+
+
+def test_heading_change_exit_is_off_by_default_and_the_ct_models_only() -> None:
+    """None (the default) leaves the chain of transition_probabilities itself (the same array: bit-identical
+    outputs) and is left out of a dump; a value reads back; a CA or Singer model refuses it."""
+    assert all(m.exit_heading_change_deg is None for m in (*CA_MODELS, *MANOEUVRE_MODELS))
+    rng = np.random.default_rng(4)
+    state = imm.ImmState.start(rng.standard_normal(9), random_spd(rng), (0.9, 0.05, 0.05), MANOEUVRE_MODELS)
+    state.xs[1, 9] = 0.2
+    assert imm.transition_matrix(state, MANOEUVRE_MODELS, 5.0) is imm.transition_probabilities(MANOEUVRE_MODELS, 5.0)
+    turn = MANOEUVRE_MODELS[1]
+    assert (
+        "exit_heading_change_deg" not in turn.model_dump() and "exit_heading_change_deg" not in turn.model_dump_json()
+    )
+    exit_by_heading = heading_exit_bank(150.0, 120.0)[1]
+    assert exit_by_heading.model_dump()["exit_heading_change_deg"] == 150.0
+    assert MotionModel.model_validate_json(exit_by_heading.model_dump_json()) == exit_by_heading
+    for other in (CA_MODELS[0], MANOEUVRE_MODELS[2]):
+        with pytest.raises(ValueError, match="exit_heading_change_deg"):
+            MotionModel.model_validate({**other.model_dump(), "exit_heading_change_deg": 150.0})
+
+
 def test_model_probabilities_follow_a_turn() -> None:
     """A 2 g level turn (60 deg bank, 200 m/s) seen with small noise: the manoeuvre models must take over during the
     turn (probability of the straight model below 0.5) and hand back after it (above 0.5 at the end)."""

@@ -59,6 +59,10 @@ class MotionModel(BaseModel):
     ``sojourn_s``: mean time (s) the aircraft stays in this mode; the Markov switching probability over a step
     dt is 1 - exp(-dt / sojourn_s), shared equally among the other models (or among those named in
     ``exits_to``: a turn ends in straight flight or a new onset, not in another model).
+
+    ``exit_heading_change_deg`` (ct only; None: off): the turn ends after a mean heading change of this many
+    degrees instead of a mean time: the exit rate is |omega^| / dpsi per second (omega^ the model's turn-rate
+    estimate), at least 1 / ``sojourn_s`` (which is then the longest mean sojourn, that of a turn at omega^ = 0).
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -90,6 +94,13 @@ class MotionModel(BaseModel):
         "EKF's linearisation in omega",
     )
     sojourn_s: float = Field(gt=0.0, le=1e7, description="mean time in this mode, s")
+    exit_heading_change_deg: float | None = Field(
+        default=None,
+        gt=0.0,
+        le=3600.0,
+        description="ct: mean heading change of a turn, deg: exit rate max(|omega^| / this, 1 / sojourn_s) per "
+        "second, omega^ the model's turn-rate estimate; None: the exit rate 1 / sojourn_s",
+    )
     exits_to: tuple[str, ...] | None = Field(
         default=None,
         max_length=8,
@@ -107,17 +118,22 @@ class MotionModel(BaseModel):
             raise ValueError(f"a {self.kind} model takes sigma_accel_mps2 and tau_s (and no sigma_jerk_mps3)")
         if self.kind != "ca" and self.vertical_jerk_factor != 1.0:
             raise ValueError("vertical_jerk_factor is the ca model's (and only its)")
+        if self.kind != "ct" and self.exit_heading_change_deg is not None:
+            raise ValueError("exit_heading_change_deg is the ct model's (and only its)")
         if (self.kind == "ct") != (self.sigma_turn_rate_dps is not None):
             raise ValueError("sigma_turn_rate_dps is the ct model's (and only its) turn-rate noise")
         return self
 
     @model_serializer(mode="wrap")
     def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        """The dump leaves out ``vertical_jerk_factor`` at its default 1, so configurations echoed in outputs
-        (``fixstream mc``'s JSON) stay as they were before the field existed; it reads back as the default."""
+        """The dump leaves out ``vertical_jerk_factor`` at its default 1 and ``exit_heading_change_deg`` when
+        None, so configurations echoed in outputs (``fixstream mc``'s JSON) stay as they were before the fields
+        existed; they read back as the defaults."""
         out: dict[str, Any] = handler(self)
         if self.vertical_jerk_factor == 1.0:
             out.pop("vertical_jerk_factor", None)
+        if self.exit_heading_change_deg is None:
+            out.pop("exit_heading_change_deg", None)
         return out
 
     @property

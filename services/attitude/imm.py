@@ -85,19 +85,47 @@ def model_matrices(model: MotionModel, dt_s: float) -> tuple[F64, F64]:
 def transition_probabilities(models: tuple[MotionModel, ...], dt_s: float) -> F64:
     """pi (M x M), pi[i, j] = P(model j at t + dt | model i at t): p_ii = exp(-|dt| / sojourn_i), the rest of
     row i shared equally among the other models (those named in the model's ``exits_to``, if given). Rows sum
-    to 1."""
+    to 1. (A CT model with ``exit_heading_change_deg`` has its row at omega^ = 0 here: see
+    :func:`transition_matrix`.)"""
     m = len(models)
     if m == 1:
         pi = np.ones((1, 1))
     else:
-        names = [mod.name for mod in models]
         pi = np.zeros((m, m))
         for i, mod in enumerate(models):
-            stay = math.exp(-abs(dt_s) / mod.sojourn_s)
-            targets = [j for j in range(m) if j != i and (mod.exits_to is None or names[j] in mod.exits_to)]
-            pi[i, targets] = (1.0 - stay) / len(targets)
-            pi[i, i] = stay
+            _fill_row(pi, models, i, math.exp(-abs(dt_s) / mod.sojourn_s))
     pi.setflags(write=False)
+    return pi
+
+
+def _fill_row(pi: F64, models: tuple[MotionModel, ...], i: int, stay: float) -> None:
+    """Row i of pi: p_ii = ``stay``, 1 - stay shared equally among the models i exits to (``exits_to``)."""
+    mod = models[i]
+    targets = [j for j, o in enumerate(models) if j != i and (mod.exits_to is None or o.name in mod.exits_to)]
+    pi[i] = 0.0
+    pi[i, targets] = (1.0 - stay) / len(targets)
+    pi[i, i] = stay
+
+
+def heading_exit_stay(model: MotionModel, dt_s: float, omega_rps: float) -> float:
+    """p_jj over dt of a CT model whose turn ends after a mean heading change dpsi (``exit_heading_change_deg``):
+    exp(-|dt| lambda), lambda = max(|omega^| / dpsi, 1 / sojourn_s) (1/s; omega^ in rad/s, dpsi in rad)."""
+    assert model.exit_heading_change_deg is not None
+    rate = max(abs(omega_rps) / math.radians(model.exit_heading_change_deg), 1.0 / model.sojourn_s)
+    return math.exp(-abs(dt_s) * rate)
+
+
+def transition_matrix(state: ImmState, models: tuple[MotionModel, ...], dt_s: float) -> F64:
+    """pi over dt from ``state``: :func:`transition_probabilities`, with the row of every CT model that has
+    ``exit_heading_change_deg`` set from its own turn-rate estimate (:func:`heading_exit_stay`); without such a
+    model, :func:`transition_probabilities` itself."""
+    pi = transition_probabilities(models, dt_s)
+    rows = [i for i, mod in enumerate(models) if mod.exit_heading_change_deg is not None]
+    if not rows or len(models) == 1:
+        return pi
+    pi = pi.copy()
+    for i in rows:
+        _fill_row(pi, models, i, heading_exit_stay(models[i], dt_s, float(state.xs[i, OMEGA])))
     return pi
 
 
@@ -203,7 +231,7 @@ def mix(state: ImmState, pi: F64) -> tuple[F64, F64, F64]:
 
 def predict(state: ImmState, models: tuple[MotionModel, ...], dt_s: float) -> tuple[F64, F64, F64]:
     """Steps 1-2 without a plot: (c, alpha~ (M, 9), P~ (M, 9, 9)), each model predicted from its mixed start."""
-    c, x0, p0 = mix(state, transition_probabilities(models, float(dt_s)))
+    c, x0, p0 = mix(state, transition_matrix(state, models, float(dt_s)))
     xp = np.empty_like(x0)
     pp = np.empty_like(p0)
     for j, model in enumerate(models):

@@ -37,7 +37,7 @@ from shared.filters.covariance import symmetrize
 
 from .config import MotionModel
 from .geometry import F64
-from .imm import ImmState, combine, implied_turn_rate, mixing_weights, model_matrices, transition_probabilities
+from .imm import ImmState, combine, implied_turn_rate, mixing_weights, model_matrices, transition_matrix
 from .models import OMEGA, POS, ct_cross_covariance, ct_step
 
 N9 = 9
@@ -111,7 +111,7 @@ def step(
     keep = N9 * (d_new - 1)  # old lag components that stay (shifted by one block)
     k_new = N9 * d_new
     # 1. mixing of the lagged blocks with the IMM's weights
-    _, w = mixing_weights(prev.mu, transition_probabilities(models, float(dt_s)))
+    _, w = mixing_weights(prev.mu, transition_matrix(prev, models, float(dt_s)))
     x0 = w.T @ prev.xs
     xl0 = w.T @ lag.xl
     xl_out = np.empty((m, k_new))
