@@ -604,34 +604,43 @@ def test_two_stacks_side_by_side(images: str, tmp_path: Path) -> None:
 
 
 def _holes(channels: dict[str, Channel]) -> tuple[int, dict[tuple[str, str], int]]:
-    """Messages missing from the recording by their publishers' own seq: per (key, source), the seqs between the
-    first and the last recorded that are not in the file, counting a payload the recorder refused (kept on
-    ``fixstream/rejected/<key>``) as recorded. Returns (the total, the pairs with holes)."""
-    seqs: dict[tuple[str, str], set[int]] = defaultdict(set)
+    """Messages missing from the recording by their publishers' own seq. Per (key, source) and per life of the
+    publisher (a new life starts where its seq goes back: a restarted process counts from 0 again), the seqs
+    between the first and the last recorded that are not in the file; a payload the recorder refused (kept on
+    ``fixstream/rejected/<key>``) counts as recorded. Returns (the total, the pairs with holes)."""
+    lives: dict[tuple[str, str], list[set[int]]] = defaultdict(list)
+    refused: dict[tuple[str, str], set[int]] = defaultdict(set)
     for topic, messages in channels.items():
         for *_, m in messages:
             if topic.startswith("fixstream/rejected/"):
                 key, _, _, payload = m
                 head = codec.peek_header(payload)
                 if head is not None:
-                    seqs[(key, head[0])].add(head[1])
-            else:
-                seqs[(topic, m.header.source)].add(m.header.seq)
-    holes = {pair: max(s) - min(s) + 1 - len(s) for pair, s in seqs.items()}
+                    refused[(key, head[0])].add(head[1])
+                continue
+            pair, seq = (topic, m.header.source), m.header.seq
+            if not lives[pair] or seq <= max(lives[pair][-1]):
+                lives[pair].append(set())
+            lives[pair][-1].add(seq)
+    for pair, seqs in refused.items():  # interleaving with the refused is not in the file: one life only
+        assert len(lives[pair]) <= 1, (pair, "refused payloads from a publisher that started again")
+        lives[pair] = [set().union(*lives[pair], seqs)]
+    holes = {pair: sum(max(s) - min(s) + 1 - len(s) for s in life) for pair, life in lives.items()}
     holes = {pair: n for pair, n in holes.items() if n}
     return sum(holes.values()), holes
 
 
 @pytest.mark.e2e
 @pytest.mark.timeout(1800)
-def test_a_detached_stack_rides_out_a_router_crash_and_counts_what_it_lost(images: str, tmp_path: Path) -> None:
+def test_a_detached_stack_rides_out_crashes_of_its_router_and_an_estimator(images: str, tmp_path: Path) -> None:
     """``docker compose up -d``, the demo at its real pace (60 s). Once the recorder has 1,000 messages, the router
     container's init is killed from the host (SIGKILL: a crash, not a stop). Its restart policy starts it again
     (a new process, maybe a new address behind the same name on the compose network); every service reconnects by
-    itself and answers ``fixstream status`` again, the player ends with 0, every estimator publishes after the
-    crash, the recorder exits 0 when stopped, and its loss count (its last ``seq_gap`` diagnostic, from the
-    publishers' own seq) is exactly the holes in the recording: what was published while no router routed it is
-    lost, and counted where it was lost."""
+    itself and answers ``fixstream status`` again. Then an estimator (lbl_nav-lbl1) is killed the same way and
+    comes back as a new process. The player ends with 0, every estimator publishes until the end, the recorder
+    exits 0 when stopped, sees the estimator's new count as a ``seq_reset`` (not as loss), and its loss count (its
+    last seq diagnostic's ``counts.lost``, from the publishers' own seq) is exactly the holes in the recording:
+    what was published while no router routed it is lost, and counted where it was lost."""
     from container_support import docker_api, healthcheck_driver, run
 
     recordings = _writable_dir(tmp_path / "containers")
@@ -697,6 +706,10 @@ def test_a_detached_stack_rides_out_a_router_crash_and_counts_what_it_lost(image
                 sorted(set(DEMO_TOKENS) - set(statuses())),
             )
             back = time.monotonic() - t0
+            lbl = container("lbl_nav-lbl1")
+            os.kill(int(inspect(lbl, "{{.State.Pid}}")), signal.SIGKILL)
+            assert wait_until(lambda: inspect(lbl, "{{.State.Status}} {{.RestartCount}}") == "running 1", timeout=60)
+            assert wait_until(all_alive, timeout=60, interval=1.0), sorted(set(DEMO_TOKENS) - set(statuses()))
             player = container("player")
             assert run(["podman", "wait", player], timeout=300).stdout.strip() == "0"
             recorder_id = container("recorder")
@@ -715,11 +728,15 @@ def test_a_detached_stack_rides_out_a_router_crash_and_counts_what_it_lost(image
         stamps = [m.header.stamp_ns for *_, m in channels.get(topic, [])]
         assert stamps and stamps[-1] >= end_ns - 10_000_000_000, (topic, stamps[-1:], end_ns)
     missing, pairs = _holes(channels)
-    diags = [m for *_, m in channels.get("fixstream/diag/recorder/main", []) if m.reason == "seq_gap"]
-    counted = diags[-1].counts["lost"] if diags else 0
+    seq_reasons = ("seq_gap", "seq_jump", "duplicate", "seq_reset")
+    diags = [m for *_, m in channels.get("fixstream/diag/recorder/main", []) if m.reason in seq_reasons]
+    counts = diags[-1].counts if diags else {}
     assert missing > 0, "the crash lost nothing: the router was not down while the player published"
-    assert counted == missing, (counted, missing, sorted(pairs.items())[:20])
+    assert counts.get("lost") == missing, (counts, missing, sorted(pairs.items())[:20])
+    assert counts.get("seq_reset", 0) >= 1, counts  # the estimator's second life
+    counted = counts["lost"]
     print(
         f"router killed; every service back {back:.1f} s later; {missing} messages lost on {len(pairs)}"
-        f" (key, source) pairs, {counted} counted by the recorder"
+        f" (key, source) pairs, {counted} counted by the recorder; the estimator's restart: {counts['seq_reset']}"
+        " seq_reset"
     )
