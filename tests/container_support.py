@@ -27,6 +27,7 @@ import json
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -321,12 +322,38 @@ def compose_up(
         run([*base, "down", "--remove-orphans", "--timeout", "5"], timeout=300, env=full_env, cwd=REPO)
 
 
+def container_id(base: Sequence[str], service: str, env: Mapping[str, str]) -> str | None:
+    """The id of ``service``'s (first) container of the compose project ``base`` names, or None."""
+    ids = run([*base, "ps", "-q", service], timeout=120, env=env, cwd=REPO).stdout.split()
+    return ids[0] if ids else None
+
+
+def inspect(cid: str, fmt: str) -> str:
+    """``podman inspect --format fmt`` of a container (e.g. ``{{.State.Pid}}``), stripped."""
+    return run(["podman", "inspect", "--format", fmt, cid], timeout=60).stdout.strip()
+
+
+def crash(cid: str) -> tuple[int, int]:
+    """SIGKILL the init of a running container from the host (a crash: the engine's restart policy applies, as it
+    does not to ``podman kill`` or ``stop``). Returns its (pid, restart count) before the kill."""
+    pid, restarts = (int(v) for v in inspect(cid, "{{.State.Pid}} {{.RestartCount}}").split())
+    assert pid > 0, f"container {cid} is not running"  # os.kill(0, ...) would kill this process group
+    os.kill(pid, signal.SIGKILL)
+    return pid, restarts
+
+
+def restarted(cid: str, pid: int, restarts: int) -> bool:
+    """Whether a container :func:`crash` killed (``pid``, ``restarts`` before) runs again as a new process."""
+    state = inspect(cid, "{{.State.Status}} {{.State.Pid}} {{.RestartCount}}").split()
+    return len(state) == 3 and state[0] == "running" and int(state[1]) not in (0, pid) and int(state[2]) > restarts
+
+
 def _exit_code(base: Sequence[str], service: str, env: Mapping[str, str]) -> int | None:
     """The exit code of ``service``'s (first) container of the compose project ``base`` names, or None."""
-    ids = run([*base, "ps", "-q", service], timeout=120, env=env, cwd=REPO).stdout.split()
-    if not ids:
+    cid = container_id(base, service, env)
+    if cid is None:
         return None
-    code = run(["podman", "inspect", "--format", "{{.State.ExitCode}}", ids[0]], timeout=60).stdout.strip()
+    code = inspect(cid, "{{.State.ExitCode}}")
     return int(code) if code.lstrip("-").isdigit() else None
 
 

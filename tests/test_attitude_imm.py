@@ -340,3 +340,10 @@ def test_model_probabilities_follow_a_turn() -> None:
     in_turn = [m for m, t in zip(mu, times, strict=True) if 115.0 <= t <= 140.0 and m is not None]
     assert max(in_turn) < 0.5
     assert mu[-1] is not None and mu[-1] > 0.5
+
+
+@pytest.mark.parametrize("omega", [math.nan, math.inf, -math.inf])
+def test_heading_change_exit_without_a_turn_rate_estimate_keeps_the_longest_sojourn(omega: float) -> None:
+    """A turn-rate estimate that is not a number gives the floor exp(-dt / S), never a NaN row."""
+    turn = heading_exit_bank(90.0, 60.0)[1]
+    assert imm.heading_exit_stay(turn, 5.0, omega) == math.exp(-5.0 / 60.0)

@@ -19,7 +19,6 @@ import json
 import os
 import re
 import shutil
-import signal
 import subprocess
 import threading
 import time
@@ -633,26 +632,22 @@ def _holes(channels: dict[str, Channel]) -> tuple[int, dict[tuple[str, str], int
 @pytest.mark.e2e
 @pytest.mark.timeout(1800)
 def test_a_detached_stack_rides_out_crashes_of_its_router_and_an_estimator(images: str, tmp_path: Path) -> None:
-    """``docker compose up -d``, the demo at its real pace (60 s). Once the recorder has 1,000 messages, the router
-    container's init is killed from the host (SIGKILL: a crash, not a stop). Its restart policy starts it again
-    (a new process, maybe a new address behind the same name on the compose network); every service reconnects by
-    itself and answers ``fixstream status`` again. Then an estimator (lbl_nav-lbl1) is killed the same way and
-    comes back as a new process. The player ends with 0, every estimator publishes until the end, the recorder
-    exits 0 when stopped, sees the estimator's new count as a ``seq_reset`` (not as loss), and its loss count (its
-    last seq diagnostic's ``counts.lost``, from the publishers' own seq) is exactly the holes in the recording:
-    what was published while no router routed it is lost, and counted where it was lost."""
-    from container_support import docker_api, healthcheck_driver, run
+    """``docker compose up -d``, the demo at half its real pace (120 s). Once the recorder has 1,000 messages
+    (about 20 s in), the router container's init is killed from the host (SIGKILL: a crash, not a stop). Its restart
+    policy starts it again as a new process, and every service reconnects by itself and answers
+    ``fixstream status`` again. Then an estimator (lbl_nav-lbl1) is killed the same way and comes back as a new
+    process. The player ends with 0; every estimator publishes until the end (but auv3, whose mission may not have
+    begun: see below); the recorder exits 0 when stopped, sees the estimator's new count as a ``seq_reset`` (not
+    as loss), and its loss count (its last seq diagnostic's ``counts.lost``, from the publishers' own seq) is
+    exactly the holes in the recording: what was published while no router routed it is lost, and counted where
+    it was lost (when the publisher's next message on its key comes through)."""
+    from container_support import container_id, crash, docker_api, healthcheck_driver, inspect, restarted, run
 
     recordings = _writable_dir(tmp_path / "containers")
     port = free_tcp_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    env = stack_env(
-        images,
-        recordings,
-        port,
-        FIXSTREAM_SCENARIO="scenarios/demo.yaml",
-        FIXSTREAM_RATE="1",
-    )
+    # half pace: 120 s of run, so that both crashes and recoveries fit well inside it on a busy machine
+    env = stack_env(images, recordings, port, FIXSTREAM_SCENARIO="scenarios/demo.yaml", FIXSTREAM_RATE="0.5")
     project = re.sub(r"[^a-z0-9_-]", "", f"fixstream-crash-{os.getpid()}-{tmp_path.name[-12:].lower()}")
     client_env = clean_env()
 
@@ -676,12 +671,9 @@ def test_a_detached_stack_rides_out_crashes_of_its_router_and_an_estimator(image
         base = ["docker-compose", "-p", project, "-f", str(COMPOSE), "-f", str(ROUTER_OVERRIDE)]
 
         def container(service: str) -> str:
-            ids = run([*base, "ps", "-q", service], timeout=120, env=api_env, cwd=REPO).stdout.split()
-            assert len(ids) == 1, (service, ids)
-            return ids[0]
-
-        def inspect(cid: str, fmt: str) -> str:
-            return run(["podman", "inspect", "--format", fmt, cid], timeout=60).stdout.strip()
+            cid = container_id(base, service, api_env)
+            assert cid is not None, service
+            return cid
 
         try:
             with healthcheck_driver(project):
@@ -694,22 +686,21 @@ def test_a_detached_stack_rides_out_crashes_of_its_router_and_an_estimator(image
                 timeout=120,
                 interval=0.5,
             ), "the player did not start"
+            t0 = time.monotonic()  # about 20 s into the 120 s run
             router = container("router")
-            pid = int(inspect(router, "{{.State.Pid}}"))
-            t0 = time.monotonic()
-            os.kill(pid, signal.SIGKILL)
-            assert wait_until(
-                lambda: inspect(router, "{{.State.Status}} {{.RestartCount}}") == "running 1", timeout=60
-            ), inspect(router, "{{.State.Status}} {{.RestartCount}}")
+            was = crash(router)
+            assert wait_until(lambda: restarted(router, *was), timeout=60), inspect(router, "{{json .State}}")
             assert wait_until(all_alive, timeout=60, interval=1.0), (
                 "not every service came back after the router's crash",
                 sorted(set(DEMO_TOKENS) - set(statuses())),
             )
             back = time.monotonic() - t0
             lbl = container("lbl_nav-lbl1")
-            os.kill(int(inspect(lbl, "{{.State.Pid}}")), signal.SIGKILL)
-            assert wait_until(lambda: inspect(lbl, "{{.State.Status}} {{.RestartCount}}") == "running 1", timeout=60)
+            was = crash(lbl)
+            assert wait_until(lambda: restarted(lbl, *was), timeout=60), inspect(lbl, "{{json .State}}")
             assert wait_until(all_alive, timeout=60, interval=1.0), sorted(set(DEMO_TOKENS) - set(statuses()))
+            # the estimators must have time left to publish again: say so plainly if this machine was too slow
+            assert time.monotonic() - t0 < 80, f"both crashes took {time.monotonic() - t0:.0f} s of the 120 s run"
             player = container("player")
             assert run(["podman", "wait", player], timeout=300).stdout.strip() == "0"
             recorder_id = container("recorder")
@@ -724,7 +715,10 @@ def test_a_detached_stack_rides_out_crashes_of_its_router_and_an_estimator(image
     markers = [m for *_, m in channels["fixstream/scenario/demo"]]
     assert [m.event for m in markers] == ["start", "end"]
     end_ns = markers[1].header.stamp_ns
-    for topic in DEMO_OUTPUTS[:-2]:  # every estimator goes on after the crash
+    # every estimator goes on after the crashes, but auv3: its mission (leave the dock, range-difference fixes
+    # from about 32 s) starts with the group's assignment at 10 s, one control message that the outage may lose
+    # for good (docs/stack.md, "When the router restarts")
+    for topic in [t for t in DEMO_OUTPUTS[:-2] if t != "fixstream/fix/rd/auv3"]:
         stamps = [m.header.stamp_ns for *_, m in channels.get(topic, [])]
         assert stamps and stamps[-1] >= end_ns - 10_000_000_000, (topic, stamps[-1:], end_ns)
     missing, pairs = _holes(channels)

@@ -111,7 +111,8 @@ def heading_exit_stay(model: MotionModel, dt_s: float, omega_rps: float) -> floa
     """p_jj over dt of a CT model whose turn ends after a mean heading change dpsi (``exit_heading_change_deg``):
     exp(-|dt| lambda), lambda = max(|omega^| / dpsi, 1 / sojourn_s) (1/s; omega^ in rad/s, dpsi in rad)."""
     assert model.exit_heading_change_deg is not None
-    rate = max(abs(omega_rps) / math.radians(model.exit_heading_change_deg), 1.0 / model.sojourn_s)
+    omega = abs(omega_rps) if math.isfinite(omega_rps) else 0.0  # no turn-rate estimate: the longest sojourn
+    rate = max(omega / math.radians(model.exit_heading_change_deg), 1.0 / model.sojourn_s)
     return math.exp(-abs(dt_s) * rate)
 
 
