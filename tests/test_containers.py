@@ -602,11 +602,14 @@ def test_two_stacks_side_by_side(images: str, tmp_path: Path) -> None:
         assert published > 0 and recorded == published, (name, published, recorded)
 
 
-def _holes(channels: dict[str, Channel]) -> tuple[int, dict[tuple[str, str], int]]:
-    """Messages missing from the recording by their publishers' own seq. Per (key, source) and per life of the
-    publisher (a new life starts where its seq goes back: a restarted process counts from 0 again), the seqs
-    between the first and the last recorded that are not in the file; a payload the recorder refused (kept on
-    ``fixstream/rejected/<key>``) counts as recorded. Returns (the total, the pairs with holes)."""
+#: (key, header.source)
+Pair = tuple[str, str]
+
+
+def _arrivals(channels: dict[str, Channel]) -> dict[Pair, list[set[int]]]:
+    """Per (key, source), the seqs in the recording per life of the publisher (a new life starts where its seq
+    goes back: a restarted process counts from 0 again); a payload the recorder refused (kept on
+    ``fixstream/rejected/<key>``) counts as arrived."""
     lives: dict[tuple[str, str], list[set[int]]] = defaultdict(list)
     refused: dict[tuple[str, str], set[int]] = defaultdict(set)
     for topic, messages in channels.items():
@@ -624,8 +627,20 @@ def _holes(channels: dict[str, Channel]) -> tuple[int, dict[tuple[str, str], int
     for pair, seqs in refused.items():  # interleaving with the refused is not in the file: one life only
         assert len(lives[pair]) <= 1, (pair, "refused payloads from a publisher that started again")
         lives[pair] = [set().union(*lives[pair], seqs)]
-    holes = {pair: sum(max(s) - min(s) + 1 - len(s) for s in life) for pair, life in lives.items()}
-    holes = {pair: n for pair, n in holes.items() if n}
+    return dict(lives)
+
+
+def _holes(channels: dict[str, Channel], players: frozenset[str] = frozenset()) -> tuple[int, dict[Pair, int]]:
+    """Messages missing from the recording by their publishers' own seq, before the last one that arrived: per
+    (key, source) and life, the seqs between the first and the last that are not in the file; for a player whose
+    run started in the recording (``players``), from seq 0 (its streams count from 0 after its start marker).
+    Returns (the total, the pairs with holes)."""
+    holes: dict[tuple[str, str], int] = {}
+    for pair, life in _arrivals(channels).items():
+        first = 0 if pair[1] in players and not pair[0].startswith("fixstream/scenario/") else None
+        n = sum(max(s) - (min(s) if first is None else first) + 1 - len(s) for s in life)
+        if n:
+            holes[pair] = n
     return sum(holes.values()), holes
 
 
@@ -716,21 +731,31 @@ def test_a_detached_stack_rides_out_crashes_of_its_router_and_an_estimator(image
     assert [m.event for m in markers] == ["start", "end"]
     end_ns = markers[1].header.stamp_ns
     # every estimator goes on after the crashes, but auv3: its mission (leave the dock, range-difference fixes
-    # from about 32 s) starts with the group's assignment at 10 s, one control message that the outage may lose
-    # for good (docs/stack.md, "When the router restarts")
+    # from about 32 s) starts with its status at 10 s, one control message the outage may lose for good (counted
+    # as lost_at_end below; docs/stack.md, "When the router restarts")
     for topic in [t for t in DEMO_OUTPUTS[:-2] if t != "fixstream/fix/rd/auv3"]:
         stamps = [m.header.stamp_ns for *_, m in channels.get(topic, [])]
         assert stamps and stamps[-1] >= end_ns - 10_000_000_000, (topic, stamps[-1:], end_ns)
-    missing, pairs = _holes(channels)
-    seq_reasons = ("seq_gap", "seq_jump", "duplicate", "seq_reset")
+    player = markers[0].header.source
+    missing, pairs = _holes(channels, frozenset({player}))
+    seq_reasons = ("seq_gap", "seq_jump", "duplicate", "seq_reset", "lost_at_end")
     diags = [m for *_, m in channels.get("fixstream/diag/recorder/main", []) if m.reason in seq_reasons]
     counts = diags[-1].counts if diags else {}
     assert missing > 0, "the crash lost nothing: the router was not down while the player published"
     assert counts.get("lost") == missing, (counts, missing, sorted(pairs.items())[:20])
     assert counts.get("seq_reset", 0) >= 1, counts  # the estimator's second life
+    # the player's streams, whole: what its end marker counts = what arrived + what the recorder counted as lost
+    # before the last arrival on each key (seq gaps) + after it (lost at the run's end)
+    arrived = _arrivals(channels)
+    published = markers[1].published
+    not_arrived = sum(n - len(set().union(*arrived.get((k, player), [set()]))) for k, n in published.items())
+    player_holes = sum(n for (_, source), n in pairs.items() if source == player)
+    tails = [m for *_, m in channels.get("fixstream/diag/recorder/main", []) if m.reason == "lost_at_end"]
+    lost_at_end = tails[-1].counts["lost_at_end"] if tails else 0
+    assert not_arrived == player_holes + lost_at_end, (not_arrived, player_holes, lost_at_end)
     counted = counts["lost"]
     print(
         f"router killed; every service back {back:.1f} s later; {missing} messages lost on {len(pairs)}"
-        f" (key, source) pairs, {counted} counted by the recorder; the estimator's restart: {counts['seq_reset']}"
-        " seq_reset"
+        f" (key, source) pairs, {counted} counted by the recorder; after the last arrival on a key: {lost_at_end};"
+        f" the estimator's restart: {counts['seq_reset']} seq_reset"
     )

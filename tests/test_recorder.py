@@ -17,7 +17,7 @@ from recorder_support import by_topic, examples, recorder, records_of, restamp
 from samples import EXAMPLES
 from test_player_zenoh import Collector
 
-from schemas import Diagnostic, Message
+from schemas import Diagnostic, Header, Message, ScenarioMarker
 from shared import codec, keys
 from shared.mcap_io import (
     MAGIC,
@@ -152,6 +152,46 @@ def test_seq_gaps_and_resets_are_reported(router: str, tmp_path: Path) -> None:
     topics = Counter(r.topic for r in records_of(recording_files(rec.out_dir)))
     assert topics[key] == 5  # gaps and resets are reported, the messages are still recorded
     assert topics[keys.diag("recorder", "gaps")] >= 2  # its own diagnostics are on fixstream/** too
+
+
+def test_a_tail_no_seq_shows_is_counted_against_the_end_marker(router: str, tmp_path: Path) -> None:
+    """A player's run on four keys, each cut differently: ``whole`` arrives whole, ``gap`` loses seq 2 in the
+    middle (the seq check sees it when seq 3 comes), ``head`` its first two (its stream counts from 0 after the
+    start marker), ``tail`` its last two (no later message shows them). Against the end marker's counts (5 each)
+    the recorder counts the gap and the head as ``lost`` and the tail as ``lost_at_end``, one diagnostic naming
+    the key. A second player whose start marker the recorder never saw is not judged (what it published before
+    the recorder joined was not lost in transport)."""
+    diags: list[Diagnostic] = []
+    source, stranger = "player/tails", "player/joined-late"
+    whole, gap, head, tail = (f"fixstream/sensor/auv1/depth/{k}" for k in ("whole", "gap", "head", "tail"))
+
+    def marker(event: str, seq: int, src: str, published: dict[str, int]) -> ScenarioMarker:
+        header = Header(stamp_ns=1_000_000 * (1 + seq), frame_id="scenario", source=src, seq=seq)
+        return ScenarioMarker(header=header, event=event, scenario="tails", seed=1, published=published)
+
+    with recorder(router, tmp_path, instance="tails") as rec:
+        sub = rec.session.declare_subscriber(
+            keys.diag("recorder", "tails"),
+            lambda s: diags.append(codec.decode(s.payload.to_bytes(), str(s.encoding))),  # type: ignore[arg-type]
+        )
+        markers = "fixstream/scenario/tails"
+        rec.send(markers, marker("start", 0, source, {}))
+        for key, seqs in ((whole, range(5)), (gap, (0, 1, 3, 4)), (head, (2, 3, 4)), (tail, range(3))):
+            for seq in seqs:
+                rec.send(key, restamp(EXAMPLES["Depth"], seq, source))
+        rec.send(markers, marker("end", 1, source, {whole: 5, gap: 5, head: 5, tail: 5, markers: 1}))
+        rec.send(tail, restamp(EXAMPLES["Depth"], 7, stranger))
+        rec.send(markers, marker("end", 0, stranger, {tail: 9}))
+        status = rec.wait_status(lambda s: s["lost_at_end"] > 0)
+        assert (status["lost"], status["lost_at_end"], status["seq_gaps"]) == (3, 2, 2)
+        assert wait_until(lambda: any(d.reason == "lost_at_end" for d in diags), timeout=10), rec.log()
+        end = next(d for d in diags if d.reason == "lost_at_end")
+        assert end.key == tail and "2 on " + tail in end.detail and source in end.detail
+        assert end.count == 1 and end.counts["lost_at_end"] == 2 and end.counts["lost"] == 3
+        time.sleep(2.0)  # the stranger's end marker is not judged, then or later
+        assert rec.status()["lost_at_end"] == 2
+        sub.undeclare()
+        rec.terminate()
 
 
 # ----- faults ---------------------------------------------------------------------------------------

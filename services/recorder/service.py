@@ -88,11 +88,17 @@ _MAX_LOOK_UPS = 8
 #: (key, source) pairs whose next seq is remembered on the fast path, at most
 _MAX_PAIRS = 65_536
 _SCENARIO_KEYS = f"{keys.ROOT}/scenario/**"
+_SCENARIO_PREFIX = f"{keys.ROOT}/scenario/"
 #: after a write error nothing is written for this long (doubling per further error up to the maximum), s
 _WRITE_BACKOFF_MIN_S = 1.0
 _WRITE_BACKOFF_MAX_S = 30.0
 #: an encoding not looked up yet (None means: looked up, not a fixstream encoding)
 _UNSEEN: Any = object()
+#: a player's end marker is held this long before the run's tails are checked against it (what the player sent
+#: before it and is still in flight arrives first; markers may come through a subscription of their own), s
+_END_CHECK_S = 1.0
+#: player sources whose start marker opened a run here, remembered at most (a flood of sources forgets the oldest)
+_MAX_RUNS_OPEN = 1024
 
 
 class RecorderService(Service):
@@ -134,6 +140,15 @@ class RecorderService(Service):
         self.current_run: RunContext | None = None
         self._diag_since: Counter[str] = Counter()
         self._diag_example: dict[str, tuple[str, str]] = {}
+        #: player sources whose start marker this recorder saw (their end marker's counts can be checked)
+        self._runs_open: dict[str, None] = {}
+        #: end markers waiting for their check: (source, published per key, when it is due on the monotonic clock)
+        self._ends: deque[tuple[str, dict[str, int], float]] = deque()
+        #: messages a player's end marker counts that never arrived after the last one that did (no seq shows them)
+        self.lost_at_end = 0
+        #: run ends at which some were missing (the diagnostic's count)
+        self.ends_with_loss = 0
+        self._records_key: dict[str, bool] = {}
         #: when the next aggregated diagnostics are due: one interval after the start, and after each flush
         self._next_diag = time.monotonic() + settings.diag_interval_s
         self._status_thread: threading.Thread | None = None
@@ -193,6 +208,7 @@ class RecorderService(Service):
             "rejected_recorded": self.writer.rejected_written,
             "durable": self.writer.durable,
             "lost": self.seq.lost,
+            "lost_at_end": self.lost_at_end,
             "seq_gaps": ev["seq_gap"],
             "seq_jumps": ev["seq_jump"],
             "seq_resets": ev["seq_reset"],
@@ -378,6 +394,9 @@ class RecorderService(Service):
         self._write_services()
         self._open_looked_up()
         now = time.monotonic()
+        # due, and nothing left in the inbox that could still be the run's (markers may come on their own subscription)
+        while self._ends and (final or (self._ends[0][2] <= now and not self._queue.qsize())):
+            self._check_end(*self._ends.popleft()[:2])
         if final or now >= self._next_diag:
             self._next_diag = now + self.config.diag_interval_s
             self._flush_diagnostics()
@@ -475,7 +494,10 @@ class RecorderService(Service):
             self._next_seq.pop(next(iter(self._next_seq)))
         self._next_seq[pair] = seq + 1
         if expected is None:
-            return  # the first message of a pair only sets the reference
+            if seq > 0 and source in self._runs_open and not key.startswith(_SCENARIO_PREFIX):
+                expected = 0  # a player's stream in a run whose start this recorder saw counts from 0: head lost
+            else:
+                return  # the first message of a pair only sets the reference (a subscriber that joined late)
         tracker = self.seq
         tracker.forget(key, source)
         tracker.check(key, source, expected - 1)
@@ -490,8 +512,21 @@ class RecorderService(Service):
     def _marker(self, marker: ScenarioMarker) -> None:
         """A player's start marker: its seq counts restart; the run's metadata, attachments and services' config."""
         source = marker.header.source
-        if not source.startswith(PLAYER_PREFIX) or marker.event != "start":
-            return  # recorded as it came, but only a player's start marker opens a run
+        if not source.startswith(PLAYER_PREFIX):
+            return  # recorded as it came, but only a player's markers open and close a run
+        if marker.event == "end":
+            if source in self._runs_open:
+                self._ends.append((source, dict(marker.published), time.monotonic() + _END_CHECK_S))
+            return
+        if marker.event != "start":
+            return
+        for i in [i for i, end in enumerate(self._ends) if end[0] == source]:  # its last run first: seq restarts
+            self._check_end(*self._ends[i][:2])
+        self._ends = deque(end for end in self._ends if end[0] != source)
+        self._runs_open.pop(source, None)
+        if len(self._runs_open) >= _MAX_RUNS_OPEN:
+            self._runs_open.pop(next(iter(self._runs_open)))
+        self._runs_open[source] = None
         self.seq.forget_source(source)
         for pair in [p for p in self._next_seq if p[1] == source]:
             del self._next_seq[pair]
@@ -507,6 +542,41 @@ class RecorderService(Service):
         while len(self._look_ups) >= _MAX_LOOK_UPS:  # a flood of markers waits for the oldest: memory stays bounded
             self._open_run(self._look_ups.popleft())
         self._look_ups.append(self._look_up_pool.submit(run_context, *args))
+
+    def _check_end(self, source: str, published: dict[str, int]) -> None:
+        """A player's end marker against what arrived: on every key it counts that this recorder subscribes to, the
+        messages after the last seq that arrived (``published[key]`` minus the next seq expected) never came. The
+        seq check cannot see them (no later message shows the gap): they are counted here, as ``lost_at_end``."""
+        self._runs_open.pop(source, None)
+        missing: dict[str, int] = {}
+        for key, n in published.items():
+            if n > 0 and self._records(key):
+                late = n - self._next_seq.get((key, source), 0)
+                if late > 0:
+                    missing[key] = late
+        if not missing:
+            return
+        total = sum(missing.values())
+        self.lost_at_end += total
+        self.ends_with_loss += 1
+        self._diag_since["lost_at_end"] += 1
+        worst = sorted(missing.items(), key=lambda kv: (-kv[1], kv[0]))[:3]
+        listed = ", ".join(f"{n} on {key}" for key, n in worst)
+        more = f" and {len(missing) - 3} other key(s)" if len(missing) > 3 else ""
+        detail = f"{total} message(s) {source} counted in its end marker never arrived: {listed}{more}"
+        self._diag_example["lost_at_end"] = (worst[0][0], detail)
+
+    def _records(self, key: str) -> bool:
+        """Whether ``key`` (from an end marker: any string) is one this recorder subscribes to."""
+        known = self._records_key.get(key)
+        if known is None:
+            try:
+                known = zenoh.KeyExpr(self.config.key_expr).intersects(zenoh.KeyExpr(key))
+            except Exception:  # not a key expression: nothing was ever published on it
+                known = False
+            if len(self._records_key) < 65_536:
+                self._records_key[key] = known
+        return known
 
     def _open_run(self, run: RunContext | Future[RunContext]) -> None:
         """A start marker's run (or the look-up that finds it, waited for): its metadata and attachments in the
@@ -563,6 +633,9 @@ class RecorderService(Service):
             if reason == "write_error":
                 total, counts = self.write_errors, {"write_error": self.write_errors}
                 text = f"{n} write error(s); the file was closed (readable up to its last chunk); last: {detail}"
+            elif reason == "lost_at_end":
+                total, counts = self.ends_with_loss, {**self.seq.as_dict(), "lost_at_end": self.lost_at_end}
+                text = f"{n} run end(s) with messages missing at the tail; last: {detail}"
             elif reason in self.counters.rejected_by_reason:
                 total, counts = self.counters.rejected_by_reason[reason], dict(self.counters.rejected_by_reason)
                 text = f"{n} payload(s) rejected ({reason}) and recorded raw on fixstream/rejected/...; last: {detail}"
