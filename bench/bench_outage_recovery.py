@@ -40,7 +40,7 @@ from shared.session import free_tcp_port, open_session
 from shared.settings import ZenohSettings
 
 from .report import emit
-from .stack import REPO
+from .stack import REPO, start_router
 
 KEYS = ("bench/outage/k0", "bench/outage/k1", "bench/outage/k2", "bench/outage/k3")
 RATE_HZ = 10.0
@@ -130,25 +130,10 @@ def subscribe(endpoint: str, t0: float, mode: str, out: str) -> None:
     session.close()
 
 
-def _router(endpoint: str) -> subprocess.Popen[str]:
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "tools.cli.main", "router", "--listen", endpoint],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-        cwd=REPO,
-    )
-    assert proc.stdout is not None
-    if "listening" not in proc.stdout.readline():
-        proc.kill()
-        raise RuntimeError("router did not start")
-    return proc
-
-
 def run_mode(mode: str, tmp: Path) -> dict[str, Any]:
     """One run of ``mode``: router, subscriber, publisher, the outage; the figures of the module docstring."""
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    router = _router(endpoint)
+    router = start_router(endpoint)
     pub_out, sub_out = tmp / f"{mode}-pub.json", tmp / f"{mode}-sub.json"
     t0 = time.time() + 3.0  # both sessions open before the schedule starts
     role = [sys.executable, "-m", "bench.bench_outage_recovery"]
@@ -159,7 +144,7 @@ def run_mode(mode: str, tmp: Path) -> dict[str, Any]:
         router.send_signal(signal.SIGKILL)
         router.wait()
         time.sleep(max(0.0, t0 + KILL_S + OUTAGE_S - time.time()))
-        router = _router(endpoint)
+        router = start_router(endpoint)
         up_s = time.time() - t0
         pub.wait(timeout=RUN_S + 30)
         sub.wait(timeout=RUN_S + 30)

@@ -13,9 +13,8 @@ from shared.session import free_tcp_port
 REPO = Path(__file__).resolve().parent.parent
 
 
-@contextmanager
-def router() -> Iterator[str]:
-    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+def start_router(endpoint: str) -> subprocess.Popen[str]:
+    """``fixstream router --listen endpoint``, returned once it listens."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "tools.cli.main", "router", "--listen", endpoint],
         stdout=subprocess.PIPE,
@@ -27,6 +26,13 @@ def router() -> Iterator[str]:
     if "listening" not in proc.stdout.readline():
         proc.kill()
         raise RuntimeError("router did not start")
+    return proc
+
+
+@contextmanager
+def router() -> Iterator[str]:
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    proc = start_router(endpoint)
     try:
         yield endpoint
     finally:
