@@ -149,6 +149,7 @@ class RecorderService(Service):
         #: run ends at which some were missing (the diagnostic's count)
         self.ends_with_loss = 0
         self._records_key: dict[str, bool] = {}
+        self._recorded_expr = zenoh.KeyExpr(settings.key_expr)
         #: when the next aggregated diagnostics are due: one interval after the start, and after each flush
         self._next_diag = time.monotonic() + settings.diag_interval_s
         self._status_thread: threading.Thread | None = None
@@ -520,9 +521,12 @@ class RecorderService(Service):
             return
         if marker.event != "start":
             return
-        for i in [i for i, end in enumerate(self._ends) if end[0] == source]:  # its last run first: seq restarts
-            self._check_end(*self._ends[i][:2])
-        self._ends = deque(end for end in self._ends if end[0] != source)
+        pending, self._ends = self._ends, deque()
+        for end in pending:  # this source's last run is checked now, before its seq counts restart
+            if end[0] == source:
+                self._check_end(*end[:2])
+            else:
+                self._ends.append(end)
         self._runs_open.pop(source, None)
         if len(self._runs_open) >= _MAX_RUNS_OPEN:
             self._runs_open.pop(next(iter(self._runs_open)))
@@ -571,7 +575,7 @@ class RecorderService(Service):
         known = self._records_key.get(key)
         if known is None:
             try:
-                known = zenoh.KeyExpr(self.config.key_expr).intersects(zenoh.KeyExpr(key))
+                known = self._recorded_expr.intersects(zenoh.KeyExpr(key))
             except Exception:  # not a key expression: nothing was ever published on it
                 known = False
             if len(self._records_key) < 65_536:
