@@ -64,6 +64,7 @@ from schemas.base import MAX_INPUT_STAMP_NS
 from . import codec, keys
 from .errors import InputRejected
 from .inbox import Inbox
+from .recovery import Publisher, Recovery
 from .seq import IN_ORDER, SeqTracker
 from .session import open_session
 from .settings import ServiceSettings, ZenohSettings
@@ -201,6 +202,8 @@ class Service:
     def __init__(self, settings: ServiceSettings, zenoh_settings: ZenohSettings | None = None) -> None:
         self.settings = settings
         self.zenoh_settings = zenoh_settings or ZenohSettings()
+        #: which of its keys are published and subscribed with recovery (shared/recovery.py)
+        self.recovery = Recovery.of(self.zenoh_settings)
         self.instance = keys.chunk(settings.instance)
         self.source = f"{self.name}/{self.instance}"
         Header(stamp_ns=0, source=self.source)  # publish stamps it unvalidated online: check it once here
@@ -214,7 +217,7 @@ class Service:
         #: a service; the recorder releases its senders only after recording what was still in flight at its stop
         self._release_senders = self._stop
         self._seq: dict[str, int] = {}
-        self._publishers: OrderedDict[str, zenoh.Publisher] = OrderedDict()
+        self._publishers: OrderedDict[str, Publisher] = OrderedDict()
         #: the message type whose encoding each publisher was declared with
         self._publisher_model: dict[str, type[Message]] = {}
         #: keys received on, declared to the session (None: the declaration failed; not retried)
@@ -352,7 +355,7 @@ class Service:
             pub.put(codec.encode_stamped(msg, self.source, seq), encoding=codec.zenoh_encoding_of(model))
         self.counters.published += 1
 
-    def _declare_publisher(self, key: str, model: type[Message]) -> zenoh.Publisher:
+    def _declare_publisher(self, key: str, model: type[Message]) -> Publisher:
         """A publisher on ``key`` whose encoding is ``model``'s (the type first published there), undeclaring the
         least recently used one beyond :attr:`max_publishers`."""
         assert self.session is not None
@@ -361,8 +364,8 @@ class Service:
             del self._publisher_model[old_key]
             with contextlib.suppress(Exception):
                 old.undeclare()
-        pub = self.session.declare_publisher(
-            key, congestion_control=zenoh.CongestionControl.BLOCK, encoding=codec.zenoh_encoding_of(model)
+        pub = self.recovery.declare_publisher(
+            self.session, key, congestion_control=zenoh.CongestionControl.BLOCK, encoding=codec.zenoh_encoding_of(model)
         )
         self._publishers[key] = pub
         self._publisher_model[key] = model
@@ -745,11 +748,11 @@ class Service:
             log.debug("%s: could not declare key %s", self.source, key, exc_info=True)
         self._wire_keys[key] = declared
 
-    def _subscribe(self, key_expr: str) -> zenoh.Subscriber[Any]:
+    def _subscribe(self, key_expr: str) -> Any:
         """A subscriber on ``key_expr`` whose samples reach the inbox through a FIFO of :data:`FIFO_SAMPLES` and a
         delivery thread of its own (:meth:`_deliver`); end it with :meth:`_unsubscribe`."""
         assert self.session is not None
-        sub = self.session.declare_subscriber(key_expr, zenoh.handlers.FifoChannel(FIFO_SAMPLES))
+        sub = self.recovery.declare_subscriber(self.session, key_expr, zenoh.handlers.FifoChannel(FIFO_SAMPLES))
         name = f"deliver-{len(self._delivery)}"
         pump = threading.Thread(target=self._deliver, args=(sub.handler,), name=name, daemon=True)
         pump.start()

@@ -20,6 +20,7 @@ from pydantic import BaseModel, BeforeValidator, Field, ValidationError, model_v
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from .errors import StartupError
+from .keys import ROOT
 from .local_stack import default_connect, default_tls
 
 log = logging.getLogger(__name__)
@@ -70,6 +71,21 @@ class ZenohSettings(BaseSettings):
         " Off by default: a buffer a busy subscriber has not read in time is invalidated by Zenoh's watchdog and the"
         " message vanishes without a trace (measured: 7 of 61 PCL scans lost by the recorder on the demo at --rate 0;"
         " eclipse-zenoh/zenoh#2628)",
+    )
+    recovery_keys: StrList = Field(
+        default_factory=lambda: [f"{ROOT}/group/**", f"{ROOT}/scenario/**"],
+        description="key expressions published with a cache and subscribed with recovery (zenoh-ext), so that what a"
+        " router outage loses on them comes back once the router does: the control streams (shared/recovery.py)."
+        " Empty: plain publishers and subscribers everywhere",
+    )
+    recovery_cache_samples: int = Field(
+        default=64, ge=1, description="samples a publisher on a recovery key keeps for subscribers that missed them"
+    )
+    recovery_heartbeat_s: float = Field(
+        default=0.5,
+        gt=0.0,
+        description="how often a publisher on a recovery key announces its last sample's number, s (a lost last"
+        " sample is seen missing within this time of the router's return)",
     )
     connect_timeout_s: float = Field(
         default=30.0,

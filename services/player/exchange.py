@@ -25,6 +25,8 @@ import zenoh
 
 from schemas import Diagnostic, Header, Message
 from shared import codec, keys
+from shared.recovery import Recovery
+from shared.settings import ZenohSettings
 
 from .simulators import Event, ExchangeSpec
 
@@ -42,6 +44,7 @@ class ZenohExchange:
         source: str,
         instance: str = "default",
         stop: threading.Event | None = None,
+        recovery: Recovery | None = None,
     ) -> None:
         self.session = session
         self.sim_id = sim_id
@@ -53,7 +56,9 @@ class ZenohExchange:
         self._cond = threading.Condition()
         self._replies: dict[tuple[str, int], Message] = {}
         self._seq: Counter[str] = Counter()
-        self._sub = session.declare_subscriber(spec.reply_key, self._on_sample)
+        # the replies are control messages: recovered after a router outage where ``recovery`` covers their key
+        recovery = recovery or Recovery.of(ZenohSettings())
+        self._sub = recovery.declare_subscriber(session, spec.reply_key, self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         try:

@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 import zenoh
 
 from shared import keys
+from shared.recovery import Recovery
+from shared.settings import ZenohSettings
 
 from .exchange import ZenohExchange
 from .pacing import Pacer
@@ -113,14 +115,18 @@ def play_scenario(
     wait: bool = True,
     stop: threading.Event | None = None,
     progress: Callable[[int, int], None] | None = None,
+    recovery: Recovery | None = None,
 ) -> PlayResult:
     """Publish one run of ``scenario``. ``stop`` ends it early (the end marker is still sent, with the counts).
-    ``progress(messages published, data stamp ns)`` is called after every message."""
+    ``progress(messages published, data stamp ns)`` is called after every message. ``recovery``: the keys published
+    with a cache for subscribers to recover from, and the replies subscribed with recovery (None: as
+    :class:`ZenohSettings` of the environment says; shared/recovery.py)."""
     stop = stop or threading.Event()
     seed = scenario.seed if seed is None else seed
     scenario_key = keys.scenario(scenario.name)
     token = session.liveliness().declare_token(keys.alive("player", instance))
-    pubs = Publishers(session)
+    recovery = recovery or Recovery.of(ZenohSettings())
+    pubs = Publishers(session, recovery)
     exchanges: dict[str, ZenohExchange] = {}
     try:
         if wait:
@@ -134,7 +140,7 @@ def play_scenario(
         for sid, s in sim.simulators:
             spec = s.exchange_spec() if isinstance(s, InteractiveSimulator) else None
             if spec is not None:
-                exchanges[sid] = ZenohExchange(session, sid, spec, source, instance, stop)
+                exchanges[sid] = ZenohExchange(session, sid, spec, source, instance, stop, recovery)
         # the events of timeline.iter_events, encoded (wire.py: columns of nav_platform without a model per message)
         chunks = wire_chunks(sim, source, dict(exchanges))
         t0 = time.monotonic()

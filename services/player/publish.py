@@ -9,6 +9,8 @@ import zenoh
 
 from schemas import Message
 from shared import codec
+from shared.recovery import Publisher, Recovery
+from shared.settings import ZenohSettings
 
 
 class _Slot:
@@ -16,7 +18,7 @@ class _Slot:
 
     __slots__ = ("count", "encoding", "pub", "zenoh_encoding")
 
-    def __init__(self, pub: zenoh.Publisher, encoding: str) -> None:
+    def __init__(self, pub: Publisher, encoding: str) -> None:
         self.pub = pub
         self.encoding = encoding
         self.zenoh_encoding = codec.zenoh_encoding(encoding)
@@ -25,10 +27,13 @@ class _Slot:
 
 class Publishers:
     """Declares a publisher per key on first use (``CongestionControl.BLOCK``, ``Reliability.RELIABLE``),
-    so that nothing is dropped when the player runs as fast as possible; counts what was put per key."""
+    so that nothing is dropped when the player runs as fast as possible; counts what was put per key. A key that
+    ``recovery`` (None: the one :class:`ZenohSettings` of the environment gives) covers gets a publisher with a cache
+    that subscribers recover lost samples from (shared/recovery.py)."""
 
-    def __init__(self, session: zenoh.Session) -> None:
+    def __init__(self, session: zenoh.Session, recovery: Recovery | None = None) -> None:
         self.session = session
+        self.recovery = recovery or Recovery.of(ZenohSettings())
         self._slots: dict[str, _Slot] = {}
 
     @property
@@ -39,8 +44,11 @@ class Publishers:
     def put_bytes(self, key: str, payload: bytes, encoding: str) -> None:
         slot = self._slots.get(key)
         if slot is None:
-            pub = self.session.declare_publisher(
-                key, congestion_control=zenoh.CongestionControl.BLOCK, reliability=zenoh.Reliability.RELIABLE
+            pub = self.recovery.declare_publisher(
+                self.session,
+                key,
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                reliability=zenoh.Reliability.RELIABLE,
             )
             slot = self._slots[key] = _Slot(pub, encoding)
         elif slot.encoding is not encoding and slot.encoding != encoding:

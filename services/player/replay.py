@@ -30,6 +30,7 @@ import zenoh
 
 from schemas import ScenarioMarker
 from shared import codec
+from shared.recovery import Recovery
 
 from .pacing import Pacer
 from .publish import Publishers
@@ -61,14 +62,16 @@ def replay(
     stop: threading.Event | None = None,
     select: Callable[[str], bool] | None = None,
     progress: Callable[[int, int], None] | None = None,
+    recovery: Recovery | None = None,
 ) -> ReplayResult:
     """Publish the records of ``path`` that ``select(topic)`` keeps (None: every fixstream record) on their topics;
     ``progress(records published, log-time ns since the first)`` after each. Raises ``mcap_io.McapReadError`` for an
-    unreadable file."""
+    unreadable file. ``recovery``: the keys published with a cache (None: as the environment's
+    :class:`ZenohSettings` says; shared/recovery.py)."""
     from shared import mcap_io
 
     pacer = Pacer(rate, stop)
-    pubs = Publishers(session)
+    pubs = Publishers(session, recovery)
     skipped: Counter[str] = Counter()
     left_out: Counter[str] = Counter()
     first_log_time: int | None = None

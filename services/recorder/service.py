@@ -241,7 +241,9 @@ class RecorderService(Service):
             subs.append(self._subscribe(self.config.key_expr))  # FIFO + delivery thread into the inbox, as a service
             if not zenoh.KeyExpr(self.config.key_expr).intersects(zenoh.KeyExpr(_SCENARIO_KEYS)):
                 # markers are not recorded then, but they still name the run in the metadata
-                subs.append(self.session.declare_subscriber(_SCENARIO_KEYS, zenoh.handlers.FifoChannel(64)))
+                subs.append(
+                    self.recovery.declare_subscriber(self.session, _SCENARIO_KEYS, zenoh.handlers.FifoChannel(64))
+                )
             # status and liveliness on a session of their own: its link is never held by the data FIFO's
             # back-pressure, so the recorder answers at once however far behind its data is
             self._control = control = open_session(self.zenoh_settings)

@@ -98,6 +98,7 @@ def _replay(args: argparse.Namespace) -> int:
     from services.player.scenario import wait_keys
     from services.player.selection import KeySelection, selected_total
     from shared.mcap_io import McapReadError
+    from shared.recovery import Recovery
     from shared.session import open_session
 
     from . import exit_codes
@@ -112,11 +113,18 @@ def _replay(args: argparse.Namespace) -> int:
         line = progress.ProgressLine(f"replay {Path(args.file).name}", total=selected_total(args.file, select))
     timeout = REPLAY_WAIT_TIMEOUT_S if args.wait_timeout is None else args.wait_timeout
     stop = _stop_on_signals()
-    session = open_session(zenoh_settings_from(args))
+    settings = zenoh_settings_from(args)
+    session = open_session(settings)
     try:
         wait_for_alive(session, wait_keys(args.wait_for), timeout, stop)
         result = replay(
-            session, args.file, rate=args.rate, stop=stop, select=select, progress=line.update if line else None
+            session,
+            args.file,
+            rate=args.rate,
+            stop=stop,
+            select=select,
+            progress=line.update if line else None,
+            recovery=Recovery.of(settings),
         )
         if line is not None:
             line.finish()
@@ -165,6 +173,7 @@ def run(args: argparse.Namespace) -> int:
 
     from services.player.player import WaitTimeout, play_scenario
     from services.player.scenario import ScenarioError, load_scenario, resolve
+    from shared.recovery import Recovery
     from shared.session import open_session
 
     from .common import zenoh_settings_from
@@ -184,7 +193,8 @@ def run(args: argparse.Namespace) -> int:
     if progress.wanted(args.progress):
         line = progress.ProgressLine(f"play {scenario.name}", data_total_s=scenario.duration_s)
     stop = _stop_on_signals()
-    session = open_session(zenoh_settings_from(args))
+    settings = zenoh_settings_from(args)
+    session = open_session(settings)
     try:
         played = play_scenario(
             session,
@@ -196,6 +206,7 @@ def run(args: argparse.Namespace) -> int:
             wait=not args.no_wait,
             stop=stop,
             progress=line.update if line else None,
+            recovery=Recovery.of(settings),
         )
         if line is not None:
             line.finish()
