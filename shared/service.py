@@ -198,6 +198,9 @@ class Service:
     max_publishers: ClassVar[int] = 4096
     #: keys received on that are declared to the session (:meth:`_declare_wire_key`), at most
     max_wire_keys: ClassVar[int] = 4096
+    #: how long before its start marker a player's first input may be taken and still count as the run's own, s
+    #: (the marker is published first; only the two subscriptions' delivery threads can put its data ahead of it)
+    stray_window_s: ClassVar[float] = 0.5
 
     def __init__(self, settings: ServiceSettings, zenoh_settings: ZenohSettings | None = None) -> None:
         self.settings = settings
@@ -246,6 +249,12 @@ class Service:
         self.scenario_ends: Counter[str] = Counter()
         #: fresh cores started so far, this one included (:meth:`new_run`)
         self.sessions = 1
+        #: inputs the core has taken since it was started (:meth:`new_run` sets it back to 0), and when the first
+        #: of each source was taken (monotonic s)
+        self._taken_since_new_run = 0
+        self._first_taken: dict[str, float] = {}
+        #: start markers that found the core fed since the last run ended, and started a fresh one
+        self.stray_resets = 0
 
     # ----- to override ------------------------------------------------------------------------
     def subscriptions(self) -> list[Subscription]:
@@ -273,6 +282,9 @@ class Service:
         """Start a fresh core. Services replace their core, then call this (it counts :attr:`sessions` and logs);
         the outputs announce the new session where a service has such a message."""
         self.sessions += 1
+        self._taken_since_new_run = 0
+        self._first_taken.clear()
+        self._last_stamp.clear()
         log.info("%s: %s; fresh core (session %d)", self.source, reason, self.sessions)
         return ()
 
@@ -298,7 +310,11 @@ class Service:
             "counters": self.counters.as_dict(),
             "seq": self.seq.as_dict(),
             "diag_suppressed": self.diag_suppressed,
-            "scenario": {"end_pending": self._pending_end is not None, "ends": dict(self.scenario_ends)},
+            "scenario": {
+                "end_pending": self._pending_end is not None,
+                "ends": dict(self.scenario_ends),
+                "stray_resets": self.stray_resets,
+            },
             "config": self.settings.model_dump(mode="json"),
             **self.status_extra(),
         }
@@ -590,6 +606,9 @@ class Service:
                 raise InputRejected("unexpected_type", f"{type(msg).__name__} on {key}; expects {allowed}")
             if sub.monotonic:
                 self._check_monotonic(key, msg)
+            self._taken_since_new_run += 1  # a core that refuses it may have looked at it: counted all the same
+            if msg.header.source not in self._first_taken:
+                self._first_taken[msg.header.source] = time.monotonic()
             outputs = sub.handler(key, msg) or ()
             if msg.header.stamp_ns > self.data_clock_ns:
                 self.data_clock_ns = msg.header.stamp_ns
@@ -621,6 +640,7 @@ class Service:
         if marker.event == "start":
             self.data_clock_ns = marker.header.stamp_ns  # a new run: its stamps start again
             out = self._end_scenario(force=True, publish=False) if self._pending_end is not None else []
+            out.extend(self._drop_stray_inputs(marker))
             self.seq.forget_source(source)  # the player counts its seq from 0 again
             return out + list(self.on_scenario_start(marker) or ())
         if self._pending_end is not None:  # two end markers in a row: the first run is over
@@ -632,6 +652,36 @@ class Service:
         }
         self._pending_end = _PendingEnd(marker, expected)
         return self._end_scenario(force=False, publish=False)
+
+    def _drop_stray_inputs(self, marker: ScenarioMarker) -> list[Output]:
+        """A run starts from a fresh core. If the core has taken inputs since the last run ended (a message that
+        came between two runs, from a late publisher, a replay of some keys or anyone else), their state would bend
+        the new run (a stamp 30 s in made every earlier stamp of the next run ``stamp_backwards``), so a fresh core
+        is started and the drop is reported (``stray_inputs``).
+
+        The run's own first samples may be taken just before its marker (the marker has a subscription of its own,
+        and Zenoh keeps no order across subscriptions): inputs from the marker's source taken less than
+        :attr:`stray_window_s` before it are taken to be those and kept. Not with ``reset_on_scenario_end`` off,
+        where runs are meant to carry state over."""
+        taken = self._taken_since_new_run
+        if not taken or not self.settings.reset_on_scenario_end:
+            return []
+        own = self._first_taken.get(marker.header.source)
+        foreign = len(self._first_taken) > (own is not None)
+        if not foreign and own is not None and time.monotonic() - own < self.stray_window_s:
+            return []
+        self.stray_resets += 1
+        detail = f"{taken} input(s) taken since the last run ended; scenario {marker.scenario} starts from a fresh core"
+        log.warning("%s: stray_inputs: %s", self.source, detail)
+        self.report(
+            keys.scenario(marker.scenario),
+            "stray_inputs",
+            detail,
+            count=self.stray_resets,
+            counts={"stray_inputs": taken, "stray_resets": self.stray_resets},
+            stamp_ns=marker.header.stamp_ns,
+        )
+        return list(self.new_run(f"scenario {marker.scenario} starts after {taken} stray input(s)") or ())
 
     def _end_scenario(self, force: bool, publish: bool = True) -> list[Output]:
         """End the pending run if every announced message has arrived (or ``force``); publish or return its
@@ -862,7 +912,7 @@ class Service:
                 self.process(*item)
 
     def _shutdown(self) -> None:
-        subscribers = [d for d in self._declared if isinstance(d, zenoh.Subscriber)]
+        subscribers = [d for d in self._declared if id(d) in self._delivery]  # plain or advanced (shared/recovery.py)
         self._unsubscribe(subscribers)  # stop the inflow first, then finish what already arrived
         try:
             self._drain()

@@ -223,7 +223,11 @@ def test_end_marker_starts_a_fresh_core_once_its_messages_arrived() -> None:
     svc = make_service()
     body, end = feed[:-1], feed[-1]
     early = svc.run_offline([*body[:-3], end, *body[-3:]])
-    assert svc.sessions == 2 and svc.status()["scenario"] == {"end_pending": False, "ends": {"complete": 1}}
+    assert svc.sessions == 2 and svc.status()["scenario"] == {
+        "end_pending": False,
+        "ends": {"complete": 1},
+        "stray_resets": 0,
+    }
     assert without_source_seq(estimates(early)) == without_source_seq(estimates(first))
 
     # without the reset a replay is refused plot by plot (out of order / duplicate stamps)

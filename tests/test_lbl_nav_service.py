@@ -241,7 +241,8 @@ def test_end_marker_flushes_and_starts_a_fresh_core(s2: tuple[Scenario, Feed, li
     svc = make_service()
     body, end = feed[:-1], feed[-1]
     early = svc.run_offline([*body[:-4], end, *body[-4:]])
-    assert svc.status()["scenario"] == {"end_pending": False, "ends": {"complete": 1}} and svc.sessions == 2
+    assert svc.status()["scenario"] == {"end_pending": False, "ends": {"complete": 1}, "stray_resets": 0}
+    assert svc.sessions == 2
     assert [o.msg for o in early] == [o.msg for o in first]
 
     # without the reset a replay is refused sample by sample (stamps going back) and adds no fix
