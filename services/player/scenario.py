@@ -36,7 +36,7 @@ def _chunk(v: str) -> str:
 KeyChunk = Annotated[str, AfterValidator(_chunk)]
 
 
-def _wait_name(v: str) -> str:
+def wait_name(v: str) -> str:
     parts = v.split("/")
     if len(parts) not in (1, 2):
         raise ValueError(f"expected 'service' or 'service/instance', got {v!r}")
@@ -116,7 +116,7 @@ class Scenario(_Strict):
     duration_s: float = Field(gt=0.0, le=1e7, description="simulated duration, s")
     frame_id: str = Field(default="local_enu", min_length=1, max_length=128, description="header.frame_id")
     origin: GeodeticOrigin | None = Field(default=None, description="where [0, 0, 0] of frame_id is on the Earth")
-    wait_for: list[Annotated[str, AfterValidator(_wait_name)]] = Field(
+    wait_for: list[Annotated[str, AfterValidator(wait_name)]] = Field(
         default_factory=list, description="'service' (any instance) or 'service/instance' that must be alive"
     )
     wait_timeout_s: float = Field(default=30.0, gt=0.0, le=86_400.0, description="s")
@@ -155,7 +155,7 @@ def wait_keys(names: list[str]) -> list[str]:
     """'service' (any instance) or 'service/instance' -> liveliness key expressions."""
     out = []
     for name in names:
-        service, _, instance = _wait_name(name).partition("/")
+        service, _, instance = wait_name(name).partition("/")
         out.append(keys.alive(service, instance) if instance else f"{keys.ROOT}/alive/{service}/*")
     return out
 

@@ -51,6 +51,49 @@ def connect_timeout(text: str) -> float:
     return value
 
 
+def non_negative_int(text: str) -> int:
+    """argparse ``type=``: an integer >= 0 (a seed, a run index); else a usage error (exit code 2), not numpy's
+    traceback later."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value}: must be >= 0")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """argparse ``type=``: an integer >= 1 (a count)."""
+    value = non_negative_int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value}: must be >= 1")
+    return value
+
+
+def non_negative_float(text: str) -> float:
+    """argparse ``type=``: a finite number >= 0 (seconds, a rate); NaN and infinity are usage errors too (``nan``
+    used to play as fast as possible, and ``--duration nan`` never ended)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0.0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"{text}: must be a finite number >= 0")
+    return value
+
+
+def key_chunk(text: str) -> str:
+    """argparse ``type=``: one chunk of a key (an instance name): no '/', no wildcard, not empty."""
+    from shared import keys
+
+    if not keys.is_chunk(text):
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: not a key chunk (letters, digits, '_', '-', '.'; no '/', '*', '$', '#', '?', '@')"
+        )
+    return text
+
+
 def port_number(text: str) -> int:
     """argparse ``type=``: a TCP port, 0-65535 (a usage error otherwise, exit code 2)."""
     try:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import argparse
 
-from .common import add_zenoh_arguments, key_expr
+from .common import add_zenoh_arguments, key_expr, non_negative_float
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,7 +27,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="measure intervals between receive times or between header.stamp_ns",
     )
     parser.add_argument("--interval", type=float, default=1.0, help="seconds between printed updates")
-    parser.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (0: when stopped)")
+    parser.add_argument(
+        "--duration", type=non_negative_float, default=0.0, help="stop after this many seconds (0: when stopped)"
+    )
     parser.add_argument("--count", type=int, default=0, help="stop after this many messages in all (0: no limit)")
     parser.add_argument("--json", action="store_true", help="only the final statistics, one JSON object per key")
     add_zenoh_arguments(parser)

@@ -24,35 +24,52 @@ import argparse
 from typing import Any
 
 from . import progress
-from .common import add_zenoh_arguments, key_expr
+from .common import add_zenoh_arguments, key_chunk, key_expr, non_negative_float, non_negative_int
 
 #: ``--wait-timeout`` of a replay when not given (a scenario uses its file's ``wait_timeout_s``)
 REPLAY_WAIT_TIMEOUT_S = 30.0
 
 
+def _wait_for(text: str) -> str:
+    """argparse ``type=``: ``service`` or ``service/instance``, as a scenario's ``wait_for`` (a usage error else)."""
+    from services.player.scenario import wait_name
+
+    try:
+        return wait_name(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", help="scenario .yaml/.yml, a scenario name in --dir, or a recording .mcap")
-    parser.add_argument("--rate", type=float, default=1.0, help="times real time; 0 = as fast as possible")
-    parser.add_argument("--instance", default="default", help="player instance (header.source player/<instance>)")
-    parser.add_argument("--seed", type=int, help="override the scenario's seed")
-    parser.add_argument("--run", type=int, help="play Monte-Carlo run I of --seed (as fixstream mc computes it)")
+    parser.add_argument("--rate", type=non_negative_float, default=1.0, help="times real time; 0 = as fast as possible")
+    parser.add_argument(
+        "--instance", type=key_chunk, default="default", help="player instance (header.source player/<instance>)"
+    )
+    parser.add_argument("--seed", type=non_negative_int, help="override the scenario's seed")
+    parser.add_argument(
+        "--run", type=non_negative_int, help="play Monte-Carlo run I of --seed (as fixstream mc computes it)"
+    )
     parser.add_argument("--no-wait", action="store_true", help="do not wait for the scenario's wait_for services")
     parser.add_argument(
         "--wait-for",
         action="append",
+        type=_wait_for,
         default=[],
         metavar="SERVICE[/INSTANCE]",
         help="also wait for this service's liveliness before publishing (repeatable; works for .mcap too)",
     )
     parser.add_argument(
         "--wait-timeout",
-        type=float,
+        type=non_negative_float,
         metavar="S",
         help="seconds to wait for the services; default: the scenario file's wait_timeout_s, for a recording"
         f" {REPLAY_WAIT_TIMEOUT_S:g}",
     )
     parser.add_argument("--dir", help="scenario directory for names (default $FIXSTREAM_SCENARIOS_DIR or scenarios)")
-    parser.add_argument("--linger", type=float, default=0.5, help="seconds to stay connected after the end marker")
+    parser.add_argument(
+        "--linger", type=non_negative_float, default=0.5, help="seconds to stay connected after the end marker"
+    )
     progress.add_arguments(parser)
     rec = parser.add_argument_group("replay of a recording (.mcap)")
     which = rec.add_mutually_exclusive_group()
@@ -173,6 +190,7 @@ def run(args: argparse.Namespace) -> int:
 
     from services.player.player import WaitTimeout, play_scenario
     from services.player.scenario import ScenarioError, load_scenario, resolve
+    from services.player.timeline import SimulationError
     from shared.recovery import Recovery
     from shared.session import open_session
 
@@ -214,6 +232,9 @@ def run(args: argparse.Namespace) -> int:
     except WaitTimeout as exc:
         print(f"fixstream play: {scenario.name}: waiting for services: {exc}", file=sys.stderr)
         return exit_codes.TIMEOUT
+    except SimulationError as exc:  # a platform flown twice, a run too big to hold: the file's fault, one line
+        print(f"fixstream play: {scenario.name}: {exc}", file=sys.stderr)
+        return exit_codes.USAGE
     finally:
         session.close()
     print(

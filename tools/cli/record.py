@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .common import add_zenoh_arguments
+from .common import add_zenoh_arguments, key_chunk
 
 #: CLI option -> RecorderSettings field
 _FIELDS = (
@@ -42,7 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rotate-size-mb", type=float, help="new file after this many MB; 0: off (default 1024)")
     parser.add_argument("--rotate-duration-s", type=float, help="new file after this many seconds; 0: off (default)")
     parser.add_argument("--file-prefix", help="file name prefix (default fixstream)")
-    parser.add_argument("--instance", help="instance name for the status/diag/alive keys (default 'default')")
+    parser.add_argument(
+        "--instance", type=key_chunk, help="instance name for the status/diag/alive keys (default 'default')"
+    )
     parser.add_argument("--queue-size", type=int, help="samples Zenoh holds for the recorder (a FIFO; default 4096)")
     parser.add_argument("--scenarios-dir", help="the only directory start markers' scenario names are looked up in")
     parser.add_argument(

@@ -11,12 +11,16 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from .common import non_negative_int
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("action", nargs="?", choices=["list", "show", "validate"], default="list")
     parser.add_argument("targets", nargs="*", help="show: one scenario name or file; validate: files")
     parser.add_argument("--dir", help="scenario directory (default $FIXSTREAM_SCENARIOS_DIR or scenarios)")
-    parser.add_argument("--seed", type=int, help="show: seed for the stream summary (default: the scenario's)")
+    parser.add_argument(
+        "--seed", type=non_negative_int, help="show: seed for the stream summary (default: the scenario's)"
+    )
 
 
 def _list(directory: Any) -> int:
@@ -65,6 +69,7 @@ def _show(target: str, directory: Any, seed: int | None) -> int:
 
 def _validate(targets: list[str], directory: Any) -> int:
     from services.player.scenario import ScenarioError, load_scenario, scenario_files
+    from services.player.timeline import SimulationError, build
 
     files = targets or [str(f) for f in scenario_files(directory)]
     if not files:
@@ -78,6 +83,12 @@ def _validate(targets: list[str], directory: Any) -> int:
             bad += 1
             print(exc)
             continue
+        try:  # what only building the simulators checks: one platform flown twice, a run too big to hold
+            build(s, s.seed)
+        except SimulationError as exc:
+            bad += 1
+            print(f"{f}: {exc}")
+            continue
         print(f"{f}: OK ({s.name}, {s.duration_s:g} s, {len(s.simulators)} simulator(s))")
     return 1 if bad else 0
 
@@ -86,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
     import sys
 
     from services.player.scenario import ScenarioError, default_dir
+    from services.player.timeline import SimulationError
 
     directory = args.dir or default_dir()
     try:
@@ -99,4 +111,7 @@ def run(args: argparse.Namespace) -> int:
         return _validate(args.targets, directory)
     except ScenarioError as exc:
         print(exc, file=sys.stderr)
+        return 2
+    except SimulationError as exc:
+        print(f"fixstream scenarios: {exc}", file=sys.stderr)
         return 2

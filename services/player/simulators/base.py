@@ -59,6 +59,11 @@ class TruthSource(Protocol):
     def truth_at(self, stamps_ns: np.ndarray) -> TruthState: ...
 
 
+#: periodic samples (sensor and truth streams) one run of a scenario may hold: about 2 KiB of events each in memory,
+#: so a few GiB at most (the largest shipped scenario holds far fewer: tests/test_scenarios_budget.py)
+MAX_SCENARIO_SAMPLES = 2_000_000
+
+
 @dataclass
 class ScenarioContext:
     """What a simulator knows about the scenario besides its own parameters.
@@ -73,6 +78,8 @@ class ScenarioContext:
     duration_ns: int
     seed: int
     platforms: dict[str, TruthSource] = field(default_factory=dict)
+    #: periodic samples the simulators built so far have asked for (:meth:`reserve_samples`)
+    samples_reserved: int = 0
 
     @property
     def duration_s(self) -> float:
@@ -81,6 +88,17 @@ class ScenarioContext:
     def header(self, stamp_ns: int) -> Header:
         """A header stamped on the simulated clock in the scenario frame (source and seq set by the player)."""
         return Header(stamp_ns=stamp_ns, frame_id=self.frame_id)
+
+    def reserve_samples(self, n: int, what: str) -> None:
+        """Count ``n`` periodic samples of ``what`` against :data:`MAX_SCENARIO_SAMPLES`, before they are built:
+        ``ValueError`` (a one-line error of the scenario) when the run would exceed it. A scenario that asked for
+        1,000 Hz for 10^6 s passed validation and then took the machine's 24 GiB building its events."""
+        self.samples_reserved += n
+        if self.samples_reserved > MAX_SCENARIO_SAMPLES:
+            raise ValueError(
+                f"{what}: {n:,} samples make {self.samples_reserved:,} in this scenario, more than the "
+                f"{MAX_SCENARIO_SAMPLES:,} a run may hold in memory; shorten duration_s or lower the rate"
+            )
 
     def register_platform(self, platform: str, source: TruthSource) -> None:
         if platform in self.platforms:
@@ -173,11 +191,17 @@ def child_rng(rng: np.random.Generator, name: str) -> np.random.Generator:
     return np.random.Generator(np.random.PCG64(child_seed(seq, name)))
 
 
-def sample_stamps_ns(rate_hz: float, duration_ns: int, start_s: float = 0.0) -> np.ndarray:
-    """Stamps of a periodic stream: ``start + k / rate`` for every k with the stamp within the duration (ns)."""
+def sample_stamps_ns(
+    rate_hz: float, duration_ns: int, start_s: float = 0.0, *, budget: tuple[ScenarioContext, str] | None = None
+) -> np.ndarray:
+    """Stamps of a periodic stream: ``start + k / rate`` for every k with the stamp within the duration (ns).
+    ``budget``: the scenario's context and the stream's name, to count the samples against what a run may hold
+    (:meth:`ScenarioContext.reserve_samples`) before they are allocated."""
     period_ns = max(1, round(NS_PER_S / rate_hz))
     start_ns = round(start_s * NS_PER_S)
     if start_ns > duration_ns:
         return np.zeros(0, dtype=np.int64)
     n = (duration_ns - start_ns) // period_ns + 1
+    if budget is not None:
+        budget[0].reserve_samples(n, budget[1])
     return start_ns + period_ns * np.arange(n, dtype=np.int64)

@@ -64,7 +64,7 @@ class NavPlatform:
 
     def truth_stream(self) -> ColumnStream:
         """:class:`schemas.Truth` at ``truth_rate_hz`` as columns."""
-        stamps = sample_stamps_ns(self.params.truth_rate_hz, self.context.duration_ns)
+        stamps = sample_stamps_ns(self.params.truth_rate_hz, self.context.duration_ns, budget=(self.context, "truth"))
         st = self.trajectory.states(stamps / NS_PER_S)
         columns = {
             "position_m": st.position_m,

@@ -111,7 +111,7 @@ class SensorStream:
         self.spec = spec
         self.key = keys.sensor(platform, spec.type, spec.id)
         self.context = context
-        self.stamps = sample_stamps_ns(spec.rate_hz, context.duration_ns, spec.start_s)
+        self.stamps = sample_stamps_ns(spec.rate_hz, context.duration_ns, spec.start_s, budget=(context, self.key))
         self.truth = trajectory.states(self.stamps / NS_PER_S)
         self.dt_s = 1.0 / spec.rate_hz
         n = self.stamps.size
