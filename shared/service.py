@@ -66,7 +66,7 @@ from .errors import InputRejected
 from .inbox import Inbox
 from .recovery import Publisher, Recovery
 from .seq import IN_ORDER, SeqTracker
-from .session import open_session
+from .session import open_session, refuse_namesake
 from .settings import ServiceSettings, ZenohSettings
 
 log = logging.getLogger("fixstream.service")
@@ -201,6 +201,8 @@ class Service:
     #: how long before its start marker a player's first input may be taken and still count as the run's own, s
     #: (the marker is published first; only the two subscriptions' delivery threads can put its data ahead of it)
     stray_window_s: ClassVar[float] = 0.5
+    #: how long a process waits for a namesake's liveliness token to go before it refuses to start, s
+    namesake_wait_s: ClassVar[float] = 12.0
 
     def __init__(self, settings: ServiceSettings, zenoh_settings: ZenohSettings | None = None) -> None:
         self.settings = settings
@@ -332,8 +334,15 @@ class Service:
         signal.signal(signal.SIGINT, handler)
 
     def run(self) -> int:
-        """Open the session, serve until stopped, close cleanly. Returns a process exit code."""
+        """Open the session, serve until stopped, close cleanly. Returns a process exit code. Another process alive
+        under the same name and instance: :class:`StartupError` (:func:`refuse_namesake`)."""
         self.session = open_session(self.zenoh_settings)
+        try:  # before anything is declared or stopped: a refused namesake touches nothing of the one that runs
+            refuse_namesake(self.session, keys.alive(self.name, self.instance), self.namesake_wait_s)
+        except BaseException:
+            with contextlib.suppress(Exception):
+                self.session.close()
+            raise
         try:
             self._declare()
             # what exists now (modules, schemas, the core) lives as long as the process: out of the collector's

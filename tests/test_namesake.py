@@ -1,0 +1,64 @@
+"""A second process under a name that is already alive refuses to start (one line, exit code 2).
+
+Found by a new user's audit: ``FIXSTREAM_LBL_NAV_INSTANCE=lbl1 fixstream run lbl_nav`` beside a stack's lbl1
+started silently; the fix stream doubled under one source with two seq counters, the recorder reported ``lost:
+6035``, and ``fixstream status`` listed ``lbl_nav/lbl1`` twice. Real processes on a real router.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import time
+
+from conftest import REPO, fixstream_cmd, service_env, wait_until
+
+from shared import keys
+from shared.service import Service
+from shared.session import open_session, query_all
+from shared.settings import ZenohSettings
+
+
+def test_a_namesake_is_refused_and_the_first_process_keeps_running(router: str) -> None:
+    env = service_env(router, FIXSTREAM_LBL_NAV_INSTANCE="lbl1")
+    first = subprocess.Popen(fixstream_cmd("run", "lbl_nav"), env=env, cwd=REPO, stderr=subprocess.DEVNULL)
+    client = open_session(ZenohSettings(mode="client", connect=[router]))
+    token = keys.alive("lbl_nav", "lbl1")
+    try:
+        assert wait_until(lambda: any(r.ok for r in client.liveliness().get(token, timeout=0.5)), 30.0)
+        started = time.monotonic()
+        second = subprocess.run(
+            fixstream_cmd("run", "lbl_nav"), env=env, cwd=REPO, capture_output=True, text=True, timeout=60
+        )
+        waited = time.monotonic() - started
+        assert second.returncode == 2, second.stderr
+        last = second.stderr.strip().splitlines()[-1]
+        assert "another process is already alive as fixstream/alive/lbl_nav/lbl1" in last, second.stderr
+        assert "Traceback" not in second.stderr
+        assert waited >= Service.namesake_wait_s  # it waited for the namesake to go before refusing
+        replies = query_all(client, keys.status("lbl_nav", "lbl1"), 3.0)
+        assert len([r for r in replies if r.ok]) == 1 and first.poll() is None  # one lbl1, still serving
+    finally:
+        client.close()
+        first.terminate()
+        assert first.wait(timeout=30) == 0
+
+
+def test_a_restart_after_a_crash_is_not_a_namesake(router: str) -> None:
+    """SIGKILL closes the crashed process's link at once, so its token goes and the restarted one starts."""
+    env = service_env(router, FIXSTREAM_LBL_NAV_INSTANCE="lbl2")
+    client = open_session(ZenohSettings(mode="client", connect=[router]))
+    token = keys.alive("lbl_nav", "lbl2")
+    try:
+        crashed = subprocess.Popen(fixstream_cmd("run", "lbl_nav"), env=env, cwd=REPO, stderr=subprocess.DEVNULL)
+        assert wait_until(lambda: any(r.ok for r in client.liveliness().get(token, timeout=0.5)), 30.0)
+        crashed.kill()
+        crashed.wait()
+        again = subprocess.Popen(fixstream_cmd("run", "lbl_nav"), env=env, cwd=REPO, stderr=subprocess.DEVNULL)
+        try:
+            assert wait_until(lambda: any(r.ok for r in client.liveliness().get(token, timeout=0.5)), 30.0)
+            assert again.poll() is None
+        finally:
+            again.terminate()
+            assert again.wait(timeout=30) == 0
+    finally:
+        client.close()
