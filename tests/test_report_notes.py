@@ -8,18 +8,16 @@ from typing import Literal
 
 from schemas import Header, ScenarioMarker, Truth
 from shared.events import Event
-from tools.report.data import cut_short
+from tools.report.data import cut_short, find_scenario
 from tools.report.paper import _lbl_decision
 from tools.report.reading import Recording
 
 NS = 1_000_000_000
 
 
-def marker(event: Literal["start", "end"], t_s: float) -> Event:
-    msg = ScenarioMarker(
-        header=Header(stamp_ns=int(t_s * NS), source="player/main"), event=event, scenario="demo", seed=1
-    )
-    return Event(msg.header.stamp_ns, "fixstream/scenario/demo", msg)
+def marker(event: Literal["start", "end"], t_s: float, source: str = "player/main", scenario: str = "demo") -> Event:
+    msg = ScenarioMarker(header=Header(stamp_ns=int(t_s * NS), source=source), event=event, scenario=scenario, seed=1)
+    return Event(msg.header.stamp_ns, f"fixstream/scenario/{scenario}", msg)
 
 
 def truth(t_s: float) -> Event:
@@ -56,3 +54,15 @@ def test_the_lbl_decision_verdict_gives_the_reason_it_has_no_data() -> None:
     assert note == "resolved at once: no pair"
     ((_, _, verdict, _),) = list(_lbl_decision({**head, "decision_correct": True}, None))
     assert verdict != "no data" and verdict
+
+
+def test_only_a_players_markers_name_runs_and_the_scenario() -> None:
+    """A new user's audit: a report said a recording of 8 runs held 25, counting the start markers a non-player
+    source had sent; such a marker must not name the scenario, nor leave a run looking cut short, either."""
+    stray = [marker("start", 5.0, source="evil", scenario="other"), marker("start", 70.0, source="", scenario="x")]
+    runs = [marker("start", 0.0), truth(30.0), marker("end", 60.0), marker("start", 61.0), marker("end", 90.0)]
+    rec = Recording(files=[], items=[stray[0], *runs, stray[1]])
+    assert [m.scenario for _, m in rec.markers] == ["demo"] * 4
+    assert cut_short(rec, None) is None
+    choice = find_scenario(rec, None, scenarios_dir=None)
+    assert choice.name == "demo" and any("holds 2 scenario runs" in n for n in choice.notes), choice.notes

@@ -31,6 +31,7 @@ from typing import Any
 from schemas import Message, ScenarioMarker
 from services.player.simulators import Event
 from shared.mcap_io import MAGIC, SCHEMA_PREFIX, McapReadError, decode_record, iter_records, recording_files
+from shared.service import PLAYER_PREFIX
 
 #: builds an Event without NamedTuple's argument parsing (the read loop makes hundreds of thousands)
 _new_event = tuple.__new__
@@ -57,7 +58,14 @@ class Recording:
 
     @property
     def markers(self) -> list[tuple[str, ScenarioMarker]]:
-        return [(it.key, it.msg) for it in self.items if isinstance(it.msg, ScenarioMarker)]
+        """The players' scenario markers: only a ``player/...`` source opens or ends a run, as for the services and
+        the recorder (docs/recorder.md); a marker from anyone else names no run and no scenario (a new user's
+        audit: a report counted 25 runs in a recording of 8, from the start markers of a non-player source)."""
+        return [
+            (it.key, it.msg)
+            for it in self.items
+            if isinstance(it.msg, ScenarioMarker) and it.msg.header.source.startswith(PLAYER_PREFIX)
+        ]
 
 
 #: the recorder's file names: ``<prefix>_<UTC yyyymmddThhmmssZ>_<nnn>.mcap`` (services/recorder/writer.py)
