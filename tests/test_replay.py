@@ -99,7 +99,7 @@ def test_replay_paces_by_log_time_and_reports_unreadable_records(router: str, tm
     assert [p for _, p, _, _ in samples] == [codec.encode(e.msg) for e in events]
     span = samples[-1][3] - samples[0][3]  # 2 s of log time at 5x real time: 0.4 s
     assert 0.3 <= span <= 5.0, span
-    assert "(1 skipped)" in proc.stdout
+    assert "(1 skipped: 1 " in proc.stdout
     assert "NoSuchModel" in proc.stderr  # the skipped record is logged with its reason
 
 

@@ -93,6 +93,7 @@ def replay(
                     continue
                 if not raw.payload and raw.reason == "payload_too_large":
                     skipped["not_kept"] += 1  # the recorder kept only its size
+                    log.info("skipping a record on %s: an oversize payload, of which only its size was kept", raw.key)
                     continue
                 key, payload, encoding = raw.key, raw.payload, raw.encoding
             elif not record.schema_name.startswith(mcap_io.SCHEMA_PREFIX):
@@ -127,12 +128,12 @@ def replay(
         pubs.close()
     result = ReplayResult(dict(pubs.counts), dict(skipped), dict(left_out), completed, time.monotonic() - t0)
     log.info(
-        "replayed %d records on %d topics from %s (%d skipped, left out: %s) in %.2f s",
+        "replayed %d records on %d topics from %s (skipped: %s; left out: %s) in %.2f s",
         result.total,
         len(result.published),
         path,
-        sum(skipped.values()),
-        dict(left_out),
+        ", ".join(f"{n} {r}" for r, n in sorted(skipped.items())) or "none",
+        ", ".join(f"{n} {r}" for r, n in sorted(left_out.items())) or "none",
         result.wall_s,
     )
     return result

@@ -30,6 +30,16 @@ from .common import add_zenoh_arguments, key_chunk, key_expr, non_negative_float
 REPLAY_WAIT_TIMEOUT_S = 30.0
 
 
+def _skipped(skipped: dict[str, int]) -> str:
+    """``54 skipped: 54 not_kept (payloads over the recorder's max_payload_bytes, kept as their size only)``."""
+    total = sum(skipped.values())
+    if not total:
+        return "0 skipped"
+    why = {"not_kept": " (payloads over the recorder's max_payload_bytes: only their size was kept)"}
+    reasons = ", ".join(f"{n} {reason}{why.get(reason, '')}" for reason, n in sorted(skipped.items()))
+    return f"{total} skipped: {reasons}"
+
+
 def _wait_for(text: str) -> str:
     """argparse ``type=``: ``service`` or ``service/instance``, as a scenario's ``wait_for`` (a usage error else)."""
     from services.player.scenario import wait_name
@@ -162,8 +172,7 @@ def _replay(args: argparse.Namespace) -> int:
         notes.append(f"{left['foreign_channel']} on Foxglove/foreign channels")
     print(
         f"replayed {result.total} records on {len(result.published)} keys from {args.file} "
-        f"({sum(result.skipped.values())} skipped) in {result.wall_s:.2f} s"
-        + (f"; left out: {', '.join(notes)}" if notes else ""),
+        f"({_skipped(result.skipped)}) in {result.wall_s:.2f} s" + (f"; left out: {', '.join(notes)}" if notes else ""),
         flush=True,
     )
     return exit_codes.OK if result.completed else exit_codes.FAILURE
