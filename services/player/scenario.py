@@ -16,7 +16,7 @@ from typing import Annotated, Any, Literal
 import yaml
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
 
-from shared import keys
+from shared import keys, yaml_numbers
 from shared.plugins import mc_module, plugins
 
 from .simulators import NS_PER_S, SimParams, UnknownSimulator, get_simulator
@@ -222,7 +222,7 @@ def load_scenario(path: str | Path) -> Scenario:
     except OSError as exc:
         raise ScenarioError(f"{p}: cannot read: {exc.strerror or exc}") from None
     try:
-        data = yaml.safe_load(text)
+        data = yaml_numbers.load(text)
     except yaml.YAMLError as exc:
         raise ScenarioError(f"{p}: invalid YAML: {_yaml_problem(exc)}") from None
     return parse_scenario(data, str(p))
@@ -259,7 +259,7 @@ def load_by_name(name: str, directory: str | Path | None = None) -> Scenario:
             return load_scenario(candidate)
     for f in scenario_files(d):
         try:
-            data = yaml.safe_load(f.read_text())
+            data = yaml_numbers.load(f.read_text())
         except (OSError, yaml.YAMLError):
             continue
         if isinstance(data, dict) and data.get("name") == name:
@@ -279,7 +279,7 @@ def resolve(name_or_path: str | Path, directory: str | Path | None = None) -> Pa
             return candidate
     for f in scenario_files(d):
         try:
-            data = yaml.safe_load(f.read_text())
+            data = yaml_numbers.load(f.read_text())
         except (OSError, yaml.YAMLError):
             continue
         if isinstance(data, dict) and data.get("name") == str(name_or_path):

@@ -25,6 +25,7 @@ from typing import Any
 import yaml
 
 from schemas import ScenarioMarker
+from shared import yaml_numbers
 
 log = logging.getLogger("fixstream.recorder")
 
@@ -65,7 +66,7 @@ def find_scenario(name: str, directories: Sequence[Path]) -> Path | None:
             try:
                 if candidate.stat().st_size > MAX_SCENARIO_BYTES:
                     continue
-                data = yaml.safe_load(candidate.read_text())
+                data = yaml_numbers.load(candidate.read_text())
             except (OSError, yaml.YAMLError, UnicodeDecodeError):
                 continue
             if isinstance(data, dict) and data.get("name") == name:

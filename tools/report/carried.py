@@ -23,6 +23,8 @@ from typing import Any
 
 import yaml
 
+from shared import yaml_numbers
+
 #: the metadata records that describe the run (the recorder's name first)
 RUN_METADATA = ("fixstream.run", "fixstream")
 #: the largest scenario attachment parsed (the recorder attaches at most 4 MB)
@@ -120,7 +122,7 @@ def read_carried(files: Sequence[Path]) -> Carried:
                             continue
                         seen.add((att.name, len(att.data)))
                         try:
-                            doc = yaml.safe_load(bytes(att.data).decode("utf-8"))
+                            doc = yaml_numbers.load(bytes(att.data).decode("utf-8"))
                         except (yaml.YAMLError, UnicodeDecodeError) as exc:
                             out.problems.append(f"{path.name}: attachment {att.name}: not YAML: {exc}")
                             continue

@@ -39,7 +39,7 @@ from services.player.scenario import (
     scenario_files,
 )
 from services.player.simulators import Event
-from shared import keys
+from shared import keys, yaml_numbers
 from shared.foxglove.frames import F64, FrameContext
 
 from .carried import Carried
@@ -217,7 +217,7 @@ def _by_name(name: str, directory: Path) -> Path:
             return directory / f"{name}{suffix}"
     for f in scenario_files(directory):
         try:
-            doc = yaml.safe_load(f.read_text())
+            doc = yaml_numbers.load(f.read_text())
         except (OSError, yaml.YAMLError, UnicodeDecodeError):
             continue
         if isinstance(doc, dict) and doc.get("name") == name:
