@@ -310,6 +310,8 @@ class Service:
             "queue_depth": self._queue.qsize(),
             "queue_bytes": self._queue.bytes,
             "counters": self.counters.as_dict(),
+            # the key expressions it listens to, every service alike (its scenario markers aside)
+            "subscribed": [sub.key_expr for sub in self._subs],
             "seq": self.seq.as_dict(),
             "diag_suppressed": self.diag_suppressed,
             "scenario": {

@@ -7,6 +7,7 @@ started silently; the fix stream doubled under one source with two seq counters,
 
 from __future__ import annotations
 
+import json
 import subprocess
 import time
 
@@ -35,8 +36,10 @@ def test_a_namesake_is_refused_and_the_first_process_keeps_running(router: str) 
         assert "another process is already alive as fixstream/alive/lbl_nav/lbl1" in last, second.stderr
         assert "Traceback" not in second.stderr
         assert waited >= Service.namesake_wait_s  # it waited for the namesake to go before refusing
-        replies = query_all(client, keys.status("lbl_nav", "lbl1"), 3.0)
-        assert len([r for r in replies if r.ok]) == 1 and first.poll() is None  # one lbl1, still serving
+        replies = [r.ok for r in query_all(client, keys.status("lbl_nav", "lbl1"), 3.0) if r.ok]
+        assert len(replies) == 1 and first.poll() is None  # one lbl1, still serving
+        status = json.loads(replies[0].payload.to_bytes())
+        assert status["subscribed"] == [status["keys"]["in"]]  # every service says what it listens to
     finally:
         client.close()
         first.terminate()
