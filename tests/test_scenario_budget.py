@@ -75,3 +75,15 @@ def test_validate_show_and_play_say_it_in_one_line(tmp_path: Path, router: str) 
             done = _cli(*args)
             assert done.returncode == 2, (args, done.stdout, done.stderr)
             assert why in done.stderr and "Traceback" not in done.stderr, done.stderr
+
+
+def test_the_list_keeps_its_columns_for_long_file_names(tmp_path: Path) -> None:
+    """A new user's audit: names longer than 24 characters pushed their row's columns out of line."""
+    for name in ("short.yaml", "a_rather_long_scenario_file_name_indeed.yaml"):
+        (tmp_path / name).write_text(yaml.safe_dump(_auv_only(name=Path(name).stem)))
+    (tmp_path / "broken.yaml").write_text("name: [\n")
+    out = _cli("scenarios", "--dir", str(tmp_path)).stdout.splitlines()
+    valid = [line for line in out if "INVALID" not in line]
+    assert len(valid) == 2 and len(out) == 3
+    assert len({line.index(" s ") for line in valid}) == 1  # the duration column ends at one place
+    assert len({line.index(Path(line.split()[0]).stem, len(line.split()[0])) for line in valid}) == 1

@@ -30,15 +30,19 @@ def _list(directory: Any) -> int:
     if not files:
         print(f"no scenario files in {directory}/")
         return 0
+    rows: list[tuple[str, ...]] = []
     for f in files:
         try:
             s = load_scenario(f)
         except ScenarioError as exc:
-            print(f"{f.name:24s} INVALID  {str(exc).splitlines()[0]}")
+            rows.append((f.name, "INVALID", str(exc).splitlines()[0]))
             continue
         kinds = ",".join(sorted({sim.kind for sim in s.simulators}))
         desc = " ".join(s.description.split())
-        print(f"{f.name:24s} {s.name:20s} {s.duration_s:9.1f} s  {kinds:20s} {desc[:70]}")
+        rows.append((f.name, s.name, f"{s.duration_s:9.1f} s", kinds, desc[:70]))
+    widths = [max(len(r[i]) for r in rows if len(r) > i + 1) for i in range(4)]  # the last column is not padded
+    for row in rows:
+        print(" ".join(cell.ljust(widths[i]) if i < len(row) - 1 else cell for i, cell in enumerate(row)).rstrip())
     return 0
 
 
