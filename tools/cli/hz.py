@@ -95,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
     if unstamped:
         print(f"fixstream hz: {unstamped} messages without a readable header.stamp_ns skipped", file=sys.stderr)
     if not summaries:
-        print(f"fixstream hz: no key on {args.key_expr} had two messages", file=sys.stderr)
+        why = "; ".join(f"{k}: {st.why_none}" for k, st in sorted(stats.items())[:5])
+        print(f"fixstream hz: no key on {args.key_expr} had a rate" + (f" ({why})" if why else ""), file=sys.stderr)
         return exit_codes.TIMEOUT
     return exit_codes.OK
