@@ -66,3 +66,21 @@ def test_only_a_players_markers_name_runs_and_the_scenario() -> None:
     assert cut_short(rec, None) is None
     choice = find_scenario(rec, None, scenarios_dir=None)
     assert choice.name == "demo" and any("holds 2 scenario runs" in n for n in choice.notes), choice.notes
+
+
+def test_an_estimator_of_the_scenario_that_published_nothing_is_named_not_dropped() -> None:
+    """A new user's audit: rd_nav-auv3 published nothing in a run and fell out of the verdicts without a word."""
+    from conftest import REPO
+
+    from services.player.scenario import load_scenario
+    from tools.report.paper import NO_DATA, paper_figures, silent_estimators
+
+    demo = load_scenario(REPO / "scenarios" / "demo.yaml")
+    published = {f"{e.kind}/{e.instance}": [truth(1.0)] for e in demo.estimators if e.instance != "auv3"}
+    rows = silent_estimators(demo, published)
+    assert [(r.kind, r.instance, r.verdict) for r in rows] == [("rd_nav", "auv3", NO_DATA)] * len(
+        paper_figures()["rd_nav"]
+    )
+    assert "published nothing" in rows[0].note
+    assert silent_estimators(demo, {**published, "rd_nav/auv3": [truth(1.0)]}) == []
+    assert silent_estimators(None, {}) == []

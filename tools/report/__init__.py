@@ -105,7 +105,7 @@ def _report(
     from .data import run_data
     from .html import render_html
     from .metrics import plugin_metrics
-    from .paper import verdicts
+    from .paper import silent_estimators, verdicts
     from .plots import section_names
 
     t = time.perf_counter()
@@ -127,6 +127,7 @@ def _report(
         for sec in sections
         for v in verdicts(sec.kind, sec.instance, sec.headline, (metrics.get(sec.instance) or {}).get("metrics"))
     ]
+    rows += silent_estimators(data.scenario, data.outputs)
     report: dict[str, Any] = {
         "run": {
             "files": [f.name for f in files],

@@ -273,6 +273,20 @@ def verdicts(kind: str, instance: str, headline: dict[str, Any], metrics: dict[s
     return rows
 
 
+def silent_estimators(scenario: Any, outputs: dict[str, Any]) -> list[Verdict]:
+    """A row for every estimator the scenario lists whose kind has paper figures but that published nothing in the
+    recording: it is named, with no data, instead of missing from the summary (a new user's audit: an rd_nav whose
+    vehicle never departed dropped out of the verdicts without a word)."""
+    rows = []
+    for est in getattr(scenario, "estimators", None) or ():
+        figures = paper_figures().get(est.kind, [])
+        if figures and not outputs.get(f"{est.kind}/{est.instance}"):
+            note = "published nothing in this recording (not running, not started, or its input never came)"
+            for fig in figures:
+                rows.append(Verdict(est.kind, est.instance, "", fig.what, fig.paper, "—", NO_DATA, note, fig.source))
+    return rows
+
+
 __all__ = [
     "ATTITUDE",
     "LBL_NAV",
@@ -286,5 +300,6 @@ __all__ = [
     "PaperFigure",
     "Verdict",
     "paper_figures",
+    "silent_estimators",
     "verdicts",
 ]
