@@ -19,6 +19,7 @@ after every published record.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections import Counter
@@ -36,6 +37,10 @@ from .pacing import Pacer
 from .publish import Publishers
 
 log = logging.getLogger("fixstream.replay")
+
+#: wall time a replay leaves between a start marker and the records before it, s:
+#: less than a service's stray window (``Service.stray_window_s``, 0.5 s), so a run's own samples never look stray
+START_MARKER_GAP_S = 0.25
 
 
 @dataclass
@@ -79,6 +84,7 @@ def replay(
     completed = True
     last_log_time: int | None = None
     t0 = time.monotonic()
+    last_put = -math.inf
     try:
         for record in mcap_io.iter_records(path):
             if mcap_io.is_rejected(record):
@@ -113,6 +119,10 @@ def replay(
                 key, payload, encoding = record.topic, codec.encode(msg), codec.encoding_of(type(msg))
                 if isinstance(msg, ScenarioMarker) and msg.event == "start" and last_log_time is not None:
                     pacer, last_log_time = Pacer(rate, stop), None  # a new run: its data clock starts again
+                    # what came before the run reaches the services before its start marker, as it did live (the
+                    # marker has a subscription of its own: at --rate 0 it could overtake them, and a service then
+                    # took them inside the run instead of dropping them as strays)
+                    time.sleep(max(0.0, START_MARKER_GAP_S - (time.monotonic() - last_put)))
             if last_log_time is not None and record.log_time_ns < last_log_time:
                 log.debug("log time goes backwards on %s (%d < %d ns)", record.topic, record.log_time_ns, last_log_time)
             last_log_time = record.log_time_ns if last_log_time is None else max(last_log_time, record.log_time_ns)
@@ -120,6 +130,7 @@ def replay(
                 completed = False
                 break
             pubs.put_bytes(key, payload, encoding)
+            last_put = time.monotonic()
             n_published += 1
             if progress is not None:
                 first_log_time = last_log_time if first_log_time is None else first_log_time
