@@ -7,7 +7,8 @@ coordinator never granted its departure). So the keys named by :attr:`ZenohSetti
 groups' uplink and decisions, ``fixstream/group/**``, and the scenario markers, ``fixstream/scenario/**``) are
 published and subscribed with zenoh-ext:
 
-* a **publisher** on such a key keeps its last :attr:`ZenohSettings.recovery_cache_samples` samples in a cache
+* a **publisher** on such a key keeps its last :attr:`ZenohSettings.recovery_cache_samples` samples (a scenario
+  marker key: its last marker only) in a cache
   that answers queries, numbers its samples, and sends a heartbeat with its last number every
   :attr:`ZenohSettings.recovery_heartbeat_s` (so that a lost *last* sample is seen missing too);
 * a **subscriber** whose key expression lies inside such a key follows each publisher's numbers and heartbeats;
@@ -33,6 +34,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import zenoh
 
+from .keys import ROOT
+
 if TYPE_CHECKING:
     from .settings import ZenohSettings
 
@@ -43,6 +46,10 @@ class Publisher(Protocol):
     def put(self, payload: bytes, *, encoding: zenoh.Encoding | str | None = None) -> None: ...
 
     def undeclare(self) -> None: ...
+
+
+#: the scenario markers' keys (their caches keep one sample: :meth:`Recovery.declare_publisher`)
+_MARKERS = f"{ROOT}/scenario/**"
 
 
 @dataclass(frozen=True)
@@ -76,10 +83,13 @@ class Recovery:
             return plain
         import zenoh.ext as zx
 
+        # a scenario key carries every run's start and end: its cache keeps the last marker only, so that a
+        # late joiner (a service restarted mid-run) learns the run it is in, not the runs before it
+        depth = 1 if zenoh.KeyExpr(_MARKERS).includes(zenoh.KeyExpr(key)) else self.cache_samples
         advanced: Publisher = zx.declare_advanced_publisher(
             session,
             key,
-            cache=zx.CacheConfig(max_samples=self.cache_samples),
+            cache=zx.CacheConfig(max_samples=depth),
             sample_miss_detection=zx.MissDetectionConfig(heartbeat=self.heartbeat_s, sporadic_heartbeat=None),
             **qos,
         )

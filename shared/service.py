@@ -252,9 +252,9 @@ class Service:
         #: fresh cores started so far, this one included (:meth:`new_run`)
         self.sessions = 1
         #: inputs the core has taken since it was started (:meth:`new_run` sets it back to 0), and when the first
-        #: of each source was taken (monotonic s)
+        #: of each source arrived (its receive time, ns: not when it was processed, which a slow core delays)
         self._taken_since_new_run = 0
-        self._first_taken: dict[str, float] = {}
+        self._first_taken: dict[str, int] = {}
         #: start markers that found the core fed since the last run ended, and started a fresh one
         self.stray_resets = 0
 
@@ -335,16 +335,28 @@ class Service:
         signal.signal(signal.SIGTERM, handler)
         signal.signal(signal.SIGINT, handler)
 
-    def run(self) -> int:
-        """Open the session, serve until stopped, close cleanly. Returns a process exit code. Another process alive
-        under the same name and instance: :class:`StartupError` (:func:`refuse_namesake`)."""
+    def _open_alone(self) -> bool:
+        """Open the session, the only process of this name and instance on the network (:func:`refuse_namesake`:
+        :class:`StartupError` otherwise), before anything is declared or stopped, so a refused namesake touches
+        nothing of the one that runs. False (the session closed again) when stopped during the wait."""
         self.session = open_session(self.zenoh_settings)
-        try:  # before anything is declared or stopped: a refused namesake touches nothing of the one that runs
-            refuse_namesake(self.session, keys.alive(self.name, self.instance), self.namesake_wait_s)
+        try:
+            refuse_namesake(self.session, keys.alive(self.name, self.instance), self.namesake_wait_s, self._stop)
         except BaseException:
             with contextlib.suppress(Exception):
                 self.session.close()
             raise
+        if self._stop.is_set():
+            with contextlib.suppress(Exception):
+                self.session.close()
+            return False
+        return True
+
+    def run(self) -> int:
+        """Open the session, serve until stopped, close cleanly. Returns a process exit code. Another process alive
+        under the same name and instance: :class:`StartupError` (:func:`refuse_namesake`)."""
+        if not self._open_alone():
+            return 0
         try:
             self._declare()
             # what exists now (modules, schemas, the core) lives as long as the process: out of the collector's
@@ -619,7 +631,7 @@ class Service:
                 self._check_monotonic(key, msg)
             self._taken_since_new_run += 1  # a core that refuses it may have looked at it: counted all the same
             if msg.header.source not in self._first_taken:
-                self._first_taken[msg.header.source] = time.monotonic()
+                self._first_taken[msg.header.source] = self.rx_time_ns
             outputs = sub.handler(key, msg) or ()
             if msg.header.stamp_ns > self.data_clock_ns:
                 self.data_clock_ns = msg.header.stamp_ns
@@ -671,15 +683,16 @@ class Service:
         is started and the drop is reported (``stray_inputs``).
 
         The run's own first samples may be taken just before its marker (the marker has a subscription of its own,
-        and Zenoh keeps no order across subscriptions): inputs from the marker's source taken less than
-        :attr:`stray_window_s` before it are taken to be those and kept. Not with ``reset_on_scenario_end`` off,
+        and Zenoh keeps no order across subscriptions): inputs from the marker's source that arrived less than
+        :attr:`stray_window_s` before it (receive times, so a slow core does not stretch the window) are taken to
+        be those and kept. Not with ``reset_on_scenario_end`` off,
         where runs are meant to carry state over."""
         taken = self._taken_since_new_run
         if not taken or not self.settings.reset_on_scenario_end:
             return []
         own = self._first_taken.get(marker.header.source)
         foreign = len(self._first_taken) > (own is not None)
-        if not foreign and own is not None and time.monotonic() - own < self.stray_window_s:
+        if not foreign and own is not None and (self.rx_time_ns - own) * 1e-9 < self.stray_window_s:
             return []
         self.stray_resets += 1
         detail = f"{taken} input(s) taken since the last run ended; scenario {marker.scenario} starts from a fresh core"

@@ -178,14 +178,16 @@ def query_all(session: zenoh.Session, selector: str, timeout_s: float) -> list[z
     )
 
 
-def refuse_namesake(session: zenoh.Session, token_key: str, wait_s: float) -> None:
+def refuse_namesake(session: zenoh.Session, token_key: str, wait_s: float, stop: threading.Event | None = None) -> None:
     """:class:`StartupError` if another process already holds the liveliness token ``token_key`` (the same service
     and instance) and still holds it after ``wait_s``. Two processes with one name publish one source with two seq
     counters: every consumer counts thousands of messages lost (a new user's audit: ``lost: 6035``) and ``fixstream
     status`` shows the name twice. The wait lets a restarted process start while its crashed predecessor's token is
-    still on its way out (a killed process's link closes at once; a vanished host's within Zenoh's lease, 10 s)."""
+    still on its way out (a killed process's link closes at once; a vanished host's within Zenoh's lease, 10 s).
+    Returns early once ``stop`` is set (SIGTERM during the wait). Needs a router: a peer that has not yet found its
+    peers sees no token."""
     deadline = time.monotonic() + wait_s
-    while True:
+    while stop is None or not stop.is_set():
         holders = [r for r in session.liveliness().get(token_key, timeout=1.0) if r.ok is not None]
         if not holders:
             return
@@ -194,7 +196,10 @@ def refuse_namesake(session: zenoh.Session, token_key: str, wait_s: float) -> No
                 f"another process is already alive as {token_key} (waited {wait_s:g} s for it to go); give this one"
                 " another instance name"
             )
-        time.sleep(0.5)
+        if stop is not None:
+            stop.wait(0.5)
+        else:
+            time.sleep(0.5)
 
 
 def _first_line(exc: BaseException) -> str:

@@ -46,6 +46,27 @@ def test_a_namesake_is_refused_and_the_first_process_keeps_running(router: str) 
         assert first.wait(timeout=30) == 0
 
 
+def test_sigterm_stops_a_namesake_that_is_still_waiting(router: str) -> None:
+    """Compose stops a container with SIGTERM and kills it 10 s later: the wait must not outlast that."""
+    env = service_env(router, FIXSTREAM_LBL_NAV_INSTANCE="lbl3")
+    client = open_session(ZenohSettings(mode="client", connect=[router]))
+    token = keys.alive("lbl_nav", "lbl3")
+    first = subprocess.Popen(fixstream_cmd("run", "lbl_nav"), env=env, cwd=REPO, stderr=subprocess.DEVNULL)
+    try:
+        assert wait_until(lambda: any(r.ok for r in client.liveliness().get(token, timeout=0.5)), 30.0)
+        second = subprocess.Popen(fixstream_cmd("run", "lbl_nav"), env=env, cwd=REPO, stderr=subprocess.DEVNULL)
+        time.sleep(4.0)  # started and waiting for the namesake to go
+        assert second.poll() is None
+        stopped = time.monotonic()
+        second.terminate()
+        assert second.wait(timeout=Service.namesake_wait_s) == 0
+        assert time.monotonic() - stopped < 3.0
+    finally:
+        client.close()
+        first.terminate()
+        assert first.wait(timeout=30) == 0
+
+
 def test_a_restart_after_a_crash_is_not_a_namesake(router: str) -> None:
     """SIGKILL closes the crashed process's link at once, so its token goes and the restarted one starts."""
     env = service_env(router, FIXSTREAM_LBL_NAV_INSTANCE="lbl2")
@@ -56,10 +77,13 @@ def test_a_restart_after_a_crash_is_not_a_namesake(router: str) -> None:
         assert wait_until(lambda: any(r.ok for r in client.liveliness().get(token, timeout=0.5)), 30.0)
         crashed.kill()
         crashed.wait()
+        started = time.monotonic()
         again = subprocess.Popen(fixstream_cmd("run", "lbl_nav"), env=env, cwd=REPO, stderr=subprocess.DEVNULL)
         try:
-            assert wait_until(lambda: any(r.ok for r in client.liveliness().get(token, timeout=0.5)), 30.0)
-            assert again.poll() is None
+            # its status answering means it is past the namesake check and serving (the crashed one's token may
+            # still be seen for a moment)
+            assert wait_until(lambda: any(r.ok for r in query_all(client, keys.status("lbl_nav", "lbl2"), 0.5)), 30.0)
+            assert again.poll() is None and time.monotonic() - started < Service.namesake_wait_s
         finally:
             again.terminate()
             assert again.wait(timeout=30) == 0

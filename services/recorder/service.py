@@ -71,7 +71,7 @@ from shared.foxglove.frames import FrameContext
 from shared.foxglove.recording import FoxgloveChannels
 from shared.mcap_io import Rejected
 from shared.service import _STOP, PLAYER_PREFIX, Output, Service, Subscription
-from shared.session import open_session, refuse_namesake
+from shared.session import open_session
 from shared.settings import ZenohSettings
 from shared.status import STATUS_ATTEMPTS, AliveTokens, collect_statuses
 
@@ -234,13 +234,9 @@ class RecorderService(Service):
     def run(self) -> int:
         """Open the session, record until stopped (SIGTERM/SIGINT), finalise the file, close. Exit code 0; 1 when a
         write failed (the recording is incomplete or missing: a stack, local or in containers, must not end with 0)."""
-        self.session = open_session(self.zenoh_settings)
-        try:  # a second recorder of this name would write beside the first and count its own losses as the other's
-            refuse_namesake(self.session, keys.alive(self.name, self.instance), self.namesake_wait_s)
-        except BaseException:
-            with contextlib.suppress(Exception):
-                self.session.close()
-            raise
+        if not self._open_alone():  # a second recorder of this name would count its losses as the other's
+            return 0
+        assert self.session is not None
         subs: list[Any] = []
         declared: list[Any] = []
         try:
