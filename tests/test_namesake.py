@@ -10,7 +10,10 @@ from __future__ import annotations
 import json
 import subprocess
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 
+import zenoh
 from conftest import REPO, fixstream_cmd, service_env, wait_until
 
 from shared import keys
@@ -19,13 +22,35 @@ from shared.session import open_session, query_all
 from shared.settings import ZenohSettings
 
 
-def test_a_namesake_is_refused_and_the_first_process_keeps_running(router: str) -> None:
-    env = service_env(router, FIXSTREAM_LBL_NAV_INSTANCE="lbl1")
-    first = subprocess.Popen(fixstream_cmd("run", "lbl_nav"), env=env, cwd=REPO, stderr=subprocess.DEVNULL)
+def _lbl_nav(env: dict[str, str]) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(fixstream_cmd("run", "lbl_nav"), env=env, cwd=REPO, stderr=subprocess.DEVNULL)
+
+
+def _serving(client: zenoh.Session, instance: str) -> bool:
+    """Whether ``lbl_nav/<instance>`` answers its status: past the namesake check and serving (a liveliness token
+    can still be a crashed predecessor's for a moment)."""
+    return any(r.ok for r in query_all(client, keys.status("lbl_nav", instance), 0.5))
+
+
+@contextmanager
+def _one_lbl_nav(router: str, instance: str) -> Iterator[tuple[zenoh.Session, subprocess.Popen[bytes], dict[str, str]]]:
+    """A serving ``fixstream run lbl_nav`` of ``instance`` and a client session; yields them and the environment
+    that names the instance; the process, unless the test killed it, must end cleanly when terminated."""
+    env = service_env(router, FIXSTREAM_LBL_NAV_INSTANCE=instance)
     client = open_session(ZenohSettings(mode="client", connect=[router]))
-    token = keys.alive("lbl_nav", "lbl1")
+    first = _lbl_nav(env)
     try:
-        assert wait_until(lambda: any(r.ok for r in client.liveliness().get(token, timeout=0.5)), 30.0)
+        assert wait_until(lambda: _serving(client, instance), 30.0)
+        yield client, first, env
+    finally:
+        client.close()
+        if first.poll() is None:  # not killed by the test itself
+            first.terminate()
+            assert first.wait(timeout=30) == 0
+
+
+def test_a_namesake_is_refused_and_the_first_process_keeps_running(router: str) -> None:
+    with _one_lbl_nav(router, "lbl1") as (client, first, env):
         started = time.monotonic()
         second = subprocess.run(
             fixstream_cmd("run", "lbl_nav"), env=env, cwd=REPO, capture_output=True, text=True, timeout=60
@@ -40,52 +65,30 @@ def test_a_namesake_is_refused_and_the_first_process_keeps_running(router: str) 
         assert len(replies) == 1 and first.poll() is None  # one lbl1, still serving
         status = json.loads(replies[0].payload.to_bytes())
         assert status["subscribed"] == [status["keys"]["in"]]  # every service says what it listens to
-    finally:
-        client.close()
-        first.terminate()
-        assert first.wait(timeout=30) == 0
 
 
 def test_sigterm_stops_a_namesake_that_is_still_waiting(router: str) -> None:
     """Compose stops a container with SIGTERM and kills it 10 s later: the wait must not outlast that."""
-    env = service_env(router, FIXSTREAM_LBL_NAV_INSTANCE="lbl3")
-    client = open_session(ZenohSettings(mode="client", connect=[router]))
-    token = keys.alive("lbl_nav", "lbl3")
-    first = subprocess.Popen(fixstream_cmd("run", "lbl_nav"), env=env, cwd=REPO, stderr=subprocess.DEVNULL)
-    try:
-        assert wait_until(lambda: any(r.ok for r in client.liveliness().get(token, timeout=0.5)), 30.0)
-        second = subprocess.Popen(fixstream_cmd("run", "lbl_nav"), env=env, cwd=REPO, stderr=subprocess.DEVNULL)
+    with _one_lbl_nav(router, "lbl3") as (_, _first, env):
+        second = _lbl_nav(env)
         time.sleep(4.0)  # started and waiting for the namesake to go
         assert second.poll() is None
         stopped = time.monotonic()
         second.terminate()
         assert second.wait(timeout=Service.namesake_wait_s) == 0
         assert time.monotonic() - stopped < 3.0
-    finally:
-        client.close()
-        first.terminate()
-        assert first.wait(timeout=30) == 0
 
 
 def test_a_restart_after_a_crash_is_not_a_namesake(router: str) -> None:
     """SIGKILL closes the crashed process's link at once, so its token goes and the restarted one starts."""
-    env = service_env(router, FIXSTREAM_LBL_NAV_INSTANCE="lbl2")
-    client = open_session(ZenohSettings(mode="client", connect=[router]))
-    token = keys.alive("lbl_nav", "lbl2")
-    try:
-        crashed = subprocess.Popen(fixstream_cmd("run", "lbl_nav"), env=env, cwd=REPO, stderr=subprocess.DEVNULL)
-        assert wait_until(lambda: any(r.ok for r in client.liveliness().get(token, timeout=0.5)), 30.0)
+    with _one_lbl_nav(router, "lbl2") as (client, crashed, env):
         crashed.kill()
         crashed.wait()
         started = time.monotonic()
-        again = subprocess.Popen(fixstream_cmd("run", "lbl_nav"), env=env, cwd=REPO, stderr=subprocess.DEVNULL)
+        again = _lbl_nav(env)
         try:
-            # its status answering means it is past the namesake check and serving (the crashed one's token may
-            # still be seen for a moment)
-            assert wait_until(lambda: any(r.ok for r in query_all(client, keys.status("lbl_nav", "lbl2"), 0.5)), 30.0)
+            assert wait_until(lambda: _serving(client, "lbl2"), 30.0)
             assert again.poll() is None and time.monotonic() - started < Service.namesake_wait_s
         finally:
             again.terminate()
             assert again.wait(timeout=30) == 0
-    finally:
-        client.close()
