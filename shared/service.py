@@ -339,18 +339,16 @@ class Service:
         """Open the session, the only process of this name and instance on the network (:func:`refuse_namesake`:
         :class:`StartupError` otherwise), before anything is declared or stopped, so a refused namesake touches
         nothing of the one that runs. False (the session closed again) when stopped during the wait."""
-        self.session = open_session(self.zenoh_settings)
+        self.session = session = open_session(self.zenoh_settings)
+        alone = False
         try:
-            refuse_namesake(self.session, keys.alive(self.name, self.instance), self.namesake_wait_s, self._stop)
-        except BaseException:
-            with contextlib.suppress(Exception):
-                self.session.close()
-            raise
-        if self._stop.is_set():
-            with contextlib.suppress(Exception):
-                self.session.close()
-            return False
-        return True
+            refuse_namesake(session, keys.alive(self.name, self.instance), self.namesake_wait_s, self._stop)
+            alone = not self._stop.is_set()
+        finally:
+            if not alone:  # refused, stopped, or interrupted: nothing was declared
+                with contextlib.suppress(Exception):
+                    session.close()
+        return alone
 
     def run(self) -> int:
         """Open the session, serve until stopped, close cleanly. Returns a process exit code. Another process alive
@@ -685,8 +683,7 @@ class Service:
         The run's own first samples may be taken just before its marker (the marker has a subscription of its own,
         and Zenoh keeps no order across subscriptions): inputs from the marker's source that arrived less than
         :attr:`stray_window_s` before it (receive times, so a slow core does not stretch the window) are taken to
-        be those and kept. Not with ``reset_on_scenario_end`` off,
-        where runs are meant to carry state over."""
+        be those and kept. Not with ``reset_on_scenario_end`` off, where runs are meant to carry state over."""
         taken = self._taken_since_new_run
         if not taken or not self.settings.reset_on_scenario_end:
             return []
