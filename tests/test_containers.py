@@ -11,11 +11,17 @@ field, with MCAP's ``publish_time`` (= ``header.stamp_ns``) and ``sequence`` (= 
 left out is MCAP's ``log_time``: the recorder's wall clock when the message arrived, which differs between any
 two runs. Nothing inside a message is excluded: estimators take their time from the data (architecture rule
 2), and the player's streams are a function of the scenario and its seed.
+
+Floats are compared to a relative tolerance (``FLOAT_REL_TOL``), everything else exactly: the image's Python and
+C math library are Debian's, not the host's, and a different libm rounds a sine or a square root differently in
+the last bit. The first such difference was seen in November 2026, when a rebuilt base image took a newer
+bookworm: the attitude filter's covariances differed in the 13th significant digit.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import shutil
@@ -91,6 +97,46 @@ def recording(directory: Path) -> dict[str, Channel]:
 WALL_CLOCK_CHANNELS = ("fixstream/diag/recorder/",)
 
 
+#: tolerance on every float of a message: |x - y| <= FLOAT_REL_TOL * max(|x|, |y|, scale) + FLOAT_ABS_TOL, the
+#: scale of a matrix's entry being the matrix's largest entry. Last-bit differences of libm (~1e-16 relative per
+#: call) grow through the filters' nonlinear steps and stop growing where the filters forget (they are stable): in
+#: the demo run where they first appeared, at most 4e-9 relative (the attitude filter's mean, its turn rate), 1.6e-11
+#: of a covariance's scale, and 1.3e-11 m absolute (the player's truth of a recorded track). 1e-7 keeps a
+#: 25-fold margin; anything a run could really do differently (another plot, another gate or mode decision,
+#: another seed) moves an estimate by at least its measurement noise's share, orders of magnitude more.
+FLOAT_REL_TOL = 1e-7
+#: absolute floor for floats near zero, in the messages' natural units (m, m/s, deg, s, probabilities): far below
+#: any sensor's resolution
+FLOAT_ABS_TOL = 1e-6
+
+
+def first_difference(x: Any, y: Any, path: str = "", scale: float = 0.0) -> str | None:
+    """Where ``x`` and ``y`` differ (a path and both values), or None: models field by field, containers element by
+    element, floats within ``FLOAT_REL_TOL`` and ``FLOAT_ABS_TOL``, everything else (strings, ints, bools, None)
+    exactly."""
+    if hasattr(x, "model_dump") and type(x) is type(y):
+        x, y = x.model_dump(), y.model_dump()
+    if isinstance(x, float) or isinstance(y, float):
+        if type(x) is not type(y):
+            return f"{path}: {x!r} != {y!r} (types)"
+        if math.isnan(x) and math.isnan(y):
+            return None
+        tol = FLOAT_REL_TOL * max(abs(x), abs(y), scale) + FLOAT_ABS_TOL
+        return None if abs(x - y) <= tol else f"{path}: {x!r} != {y!r} (tolerance {tol:.1e})"
+    if isinstance(x, dict) and isinstance(y, dict):
+        if list(x) != list(y):
+            return f"{path}: keys {list(x)} != {list(y)}"
+        return next((d for k in x if (d := first_difference(x[k], y[k], f"{path}.{k}")) is not None), None)
+    if isinstance(x, list | tuple) and isinstance(y, list | tuple) and type(x) is type(y):
+        if len(x) != len(y):
+            return f"{path}: {len(x)} items != {len(y)}"
+        if x and all(isinstance(row, list) and all(type(v) is float for v in row) for row in x):  # a matrix
+            scale = max(abs(v) for row in x for v in row)
+        diffs = (first_difference(a, b, f"{path}[{i}]", scale) for i, (a, b) in enumerate(zip(x, y, strict=True)))
+        return next((d for d in diffs if d is not None), None)
+    return None if type(x) is type(y) and x == y else f"{path}: {x!r} != {y!r}"
+
+
 def assert_same_recording(ours: dict[str, Channel], theirs: dict[str, Channel]) -> None:
     ours = {k: v for k, v in ours.items() if not k.startswith(WALL_CLOCK_CHANNELS)}
     theirs = {k: v for k, v in theirs.items() if not k.startswith(WALL_CLOCK_CHANNELS)}
@@ -98,8 +144,9 @@ def assert_same_recording(ours: dict[str, Channel], theirs: dict[str, Channel]) 
     for topic in sorted(ours):
         a, b = ours[topic], theirs[topic]
         assert len(a) == len(b), f"{topic}: {len(a)} messages in the container run, {len(b)} under fixstream up"
-        first = next((i for i, (x, y) in enumerate(zip(a, b, strict=True)) if x != y), None)
-        assert first is None, f"{topic}: message {first} differs:\n  containers: {a[first]}\n  fixstream up: {b[first]}"
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            where = first_difference(x, y)
+            assert where is None, f"{topic}: message {i} differs at {where}:\n  containers: {x}\n  fixstream up: {y}"
 
 
 def _writable_dir(path: Path) -> Path:
