@@ -73,7 +73,7 @@ def scenario(n: int) -> dict[str, Any]:
         "name": f"bench_scaling_{n}",
         "seed": 1,
         "duration_s": DURATION_S,
-        "frame_id": "map",
+        "frame_id": "map_enu",
         "simulators": sims,
     }
 

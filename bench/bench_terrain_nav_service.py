@@ -53,7 +53,7 @@ def _scenario(tmp: Path) -> Path:
         "name": "terrain_nav_bench",
         "seed": 11,
         "duration_s": 1e6,
-        "frame_id": "map",
+        "frame_id": "map_enu",
         "wait_for": [f"terrain_nav/{INSTANCE}"],
         "simulators": [
             {

@@ -24,6 +24,7 @@ from services.terrain_nav.maps import ReferenceMap, load_npy
 from services.terrain_nav.simulation import simulate
 from services.terrain_nav.simulator import TerrainFlightParams, check_same_map, generated_world
 from shared import keys
+from shared.foxglove.frames import FrameContext, estimates_of
 from tools import montecarlo
 
 SHIPPED = sorted(p for p in scenario_files(REPO / "scenarios") if p.name.startswith("terrain_nav_"))
@@ -253,3 +254,33 @@ def test_mc_params_are_validated() -> None:
     sc = parse_scenario(doc, "no such vehicle")
     with pytest.raises(ValueError, match="tan9"):
         mc.run_core([], {"vehicle": "tan9"}, sc)
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.stem)
+def test_the_truth_is_where_every_view_puts_the_true_ins_position(path: Path) -> None:
+    """The report and Foxglove read a message's axes from its frame (shared/foxglove/frames.py): the truth, stamped
+    with the scenario frame, must come out where the INS position (map axes, x north, z east) corrected by the
+    truth's own INS errors (true = INS + d, docs/terrain_nav.md) comes out. With the scenario frame once named
+    ``map`` the views swapped the truth's north and east: 8.7 km of "error" on a run whose fixes were right."""
+    sc = load_scenario(path)
+    ctx = FrameContext.from_scenario(sc)
+    events = [e for e in scenario_events(sc, sc.seed) if e.msg.header.stamp_ns <= 20 * 10**9]
+    ins = {e.msg.header.stamp_ns: e.msg for e in events if isinstance(e.msg, InsSample)}
+    truths = [e for e in events if isinstance(e.msg, Truth)]
+    assert truths, path
+    for e in truths:
+        truth, sample = e.msg, ins.get(e.msg.header.stamp_ns)
+        if sample is None:  # an INS outage
+            continue
+        (view,) = estimates_of(e.key, truth, ctx)
+        d = truth.extra
+        corrected = ctx.to_enu([sample.x_m + d["dx_m"], sample.z_m + d["dz_m"], sample.h_m + d["dh_m"]], "map")
+        np.testing.assert_allclose(view.position, corrected, rtol=0, atol=1e-6, err_msg=str(path))
+
+
+def test_a_scenario_frame_read_with_other_axes_is_refused() -> None:
+    doc = yaml.safe_load((REPO / "scenarios" / "terrain_nav_demo.yaml").read_text())
+    for frame in ("map", "base_ned", "local_en_depth", "radar_nue/r1"):
+        with pytest.raises(ScenarioError, match="not east, north, up"):
+            parse_scenario({**doc, "frame_id": frame})
+    assert parse_scenario({**doc, "frame_id": "map_enu"}).frame_id == "map_enu"

@@ -14,9 +14,19 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from shared import keys, yaml_numbers
+from shared.foxglove.frames import frame_axes
 from shared.plugins import mc_module, plugins
 
 from .simulators import NS_PER_S, SimParams, UnknownSimulator, get_simulator
@@ -122,6 +132,17 @@ class Scenario(_Strict):
     wait_timeout_s: float = Field(default=30.0, gt=0.0, le=86_400.0, description="s")
     simulators: list[SimulatorSpec] = Field(min_length=1, max_length=1000)
     estimators: list[EstimatorSpec] = Field(default_factory=list, max_length=1000)
+
+    @field_validator("frame_id")
+    @classmethod
+    def _enu_frame(cls, value: str) -> str:
+        conv = frame_axes(value)
+        if conv != "enu":  # the truth is east, north, up: a frame read with other axes would swap it in every view
+            raise ValueError(
+                f"{value!r} names a frame whose axes are not east, north, up ({conv}; docs/report.md, 'One frame for"
+                " everything'), while the scenario's truth is: name it e.g. 'local_enu' or 'map_enu'"
+            )
+        return value
 
     @model_validator(mode="after")
     def _unique(self) -> Scenario:

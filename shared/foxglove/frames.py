@@ -70,6 +70,22 @@ _AXIS_NAMES: dict[str, tuple[tuple[str, str, str], int]] = {
 _ZERO = [0.0, 0.0, 0.0]
 
 
+def frame_axes(frame_id: str) -> str:
+    """The axes convention a frame id names (a key of the module table): ``enu`` for any frame it does not know.
+
+    The scenario's own frame must be one this reads as ``enu``: its truth is east, north, up (the player's
+    scenario validation refuses the others)."""
+    if frame_id.startswith("radar_nue/"):
+        return "nue"
+    if frame_id == "map":
+        return "map"
+    if frame_id.endswith("_ned") or frame_id == "ned":
+        return "ned"
+    if frame_id.endswith("en_depth"):
+        return "en_depth"
+    return "enu"
+
+
 @dataclass
 class FrameContext:
     """What is needed to bring every frame into the scenario's ENU frame (see the module doc)."""
@@ -93,15 +109,10 @@ class FrameContext:
 
     def axes(self, frame_id: str) -> tuple[str, list[float]]:
         """(axes convention, ENU offset of the frame's origin) of a frame id."""
-        if frame_id.startswith("radar_nue/"):
-            return "nue", self.sites.get(frame_id.removeprefix("radar_nue/"), _ZERO)
-        if frame_id == "map":
-            return "map", _ZERO
-        if frame_id.endswith("_ned") or frame_id == "ned":
-            return "ned", _ZERO
-        if frame_id.endswith("en_depth"):
-            return "en_depth", _ZERO
-        return "enu", _ZERO
+        conv = frame_axes(frame_id)
+        if conv == "nue":
+            return conv, self.sites.get(frame_id.removeprefix("radar_nue/"), _ZERO)
+        return conv, _ZERO
 
     def to_enu(self, vec: Iterable[float], frame_id: str, axes: str | None = None) -> F64:
         """A position in ``frame_id`` (or with the given axes convention, no offset) as scenario ENU."""
