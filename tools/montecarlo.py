@@ -170,6 +170,7 @@ def run_on_dask(scheduler: str, scenario: Scenario, seed: int, runs: int) -> Ite
         from distributed import as_completed as dask_completed
     except ImportError:
         raise DaskUnavailable(NO_DASK) from None
+    check_scheduler_address(scheduler)
     try:
         client = Client(scheduler, timeout=DASK_CONNECT_TIMEOUT_S, set_as_default=False)
     except (OSError, TimeoutError, ValueError) as exc:
@@ -189,6 +190,22 @@ def run_on_dask(scheduler: str, scenario: Scenario, seed: int, runs: int) -> Ite
             client.close()
 
     return results()
+
+
+def check_scheduler_address(scheduler: str) -> None:
+    """:class:`DaskUnavailable` unless ``scheduler`` is an address Dask can parse (``tcp://HOST:PORT``, ``HOST:PORT``,
+    another of its protocols), checked before a ``Client`` is built: a client that fails to parse its address is
+    left half-built, and its finaliser then waits the connect timeout (40 s) before a traceback."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, location = parse_address(scheduler)
+        if scheme in ("tcp", "tls"):
+            host, port = parse_host_port(location)
+            if not host or not 0 < port < 65536:
+                raise ValueError(f"{scheduler!r} needs a host and a port 1-65535")
+    except ValueError as exc:
+        raise DaskUnavailable(f"no Dask scheduler reachable at {scheduler}: {exc} (expected tcp://HOST:PORT)") from None
 
 
 def dask_available() -> bool:

@@ -7,6 +7,9 @@ import time
 
 from .simulators import NS_PER_S
 
+#: one wait of the pacer at most, s (threading.TIMEOUT_MAX is about 9.2e9 s; a day is plenty)
+_LONGEST_WAIT_S = 86_400.0
+
 
 class Pacer:
     """Sleeps so that data stamp ``s`` goes out ``(s - s_first) / rate`` seconds after the first one."""
@@ -27,7 +30,7 @@ class Pacer:
             self._origin_stamp = stamp_ns
             self._origin_wall = time.monotonic()
         due = self._origin_wall + (stamp_ns - self._origin_stamp) / NS_PER_S / self.rate
-        delay = due - time.monotonic()
-        if delay > 0:
-            return not self.stop.wait(delay)
+        while (delay := due - time.monotonic()) > 0:  # in slices: a slow rate's wait can exceed the OS's longest
+            if self.stop.wait(min(delay, _LONGEST_WAIT_S)):
+                return False
         return not self.stop.is_set()

@@ -239,9 +239,11 @@ def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario YAML file (raises :class:`ScenarioError`)."""
     p = Path(path)
     try:
-        text = p.read_text()
+        text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise ScenarioError(f"{p}: cannot read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f"{p}: not UTF-8 text (byte {exc.start}: {exc.reason}); a scenario is a YAML file") from None
     try:
         data = yaml_numbers.load(text)
     except yaml.YAMLError as exc:
@@ -280,8 +282,8 @@ def load_by_name(name: str, directory: str | Path | None = None) -> Scenario:
             return load_scenario(candidate)
     for f in scenario_files(d):
         try:
-            data = yaml_numbers.load(f.read_text())
-        except (OSError, yaml.YAMLError):
+            data = yaml_numbers.load(f.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, yaml.YAMLError):  # load_scenario says what is wrong with it
             continue
         if isinstance(data, dict) and data.get("name") == name:
             return load_scenario(f)
@@ -300,8 +302,8 @@ def resolve(name_or_path: str | Path, directory: str | Path | None = None) -> Pa
             return candidate
     for f in scenario_files(d):
         try:
-            data = yaml_numbers.load(f.read_text())
-        except (OSError, yaml.YAMLError):
+            data = yaml_numbers.load(f.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, yaml.YAMLError):  # load_scenario says what is wrong with it
             continue
         if isinstance(data, dict) and data.get("name") == str(name_or_path):
             return f

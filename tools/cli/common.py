@@ -51,35 +51,68 @@ def connect_timeout(text: str) -> float:
     return value
 
 
-def non_negative_int(text: str) -> int:
-    """argparse ``type=``: an integer >= 0 (a seed, a run index); else a usage error (exit code 2), not numpy's
-    traceback later."""
+#: the longest time any option takes, s (about 31 years): beyond it a wait overflows the OS's timeouts
+#: (``threading.TIMEOUT_MAX``, about 9.2e9 s here) and a deadline's float arithmetic loses its seconds
+MAX_SECONDS = 1e9
+#: the most runs, intervals or messages a count option takes: beyond it a count only exhausts memory
+MAX_COUNT = 10_000_000
+#: the slowest replay rate (times real time) other than 0: a million times slower than real time
+MIN_RATE = 1e-6
+MAX_RATE = 1e9
+
+
+def _number(text: str, kind: type[int] | type[float]) -> float:
     try:
-        value = int(text)
+        return kind(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{value}: must be >= 0")
+        raise argparse.ArgumentTypeError(f"not {'an integer' if kind is int else 'a number'}: {text!r}") from None
+
+
+def non_negative_int(text: str, maximum: int = MAX_COUNT) -> int:
+    """argparse ``type=``: an integer 0..``maximum`` (a seed, a run index, a count); else a usage error (exit code 2),
+    not numpy's traceback or a MemoryError later."""
+    value = int(_number(text, int))
+    if not 0 <= value <= maximum:
+        raise argparse.ArgumentTypeError(f"{value}: must be between 0 and {maximum:,}")
     return value
+
+
+def seed(text: str) -> int:
+    """argparse ``type=``: a seed, 0 .. 2**63 - 1 (what a scenario's ``seed`` takes)."""
+    return non_negative_int(text, 2**63 - 1)
 
 
 def positive_int(text: str) -> int:
-    """argparse ``type=``: an integer >= 1 (a count)."""
-    value = non_negative_int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{value}: must be >= 1")
+    """argparse ``type=``: an integer 1..``MAX_COUNT`` (a count)."""
+    value = int(_number(text, int))
+    if not 1 <= value <= MAX_COUNT:
+        raise argparse.ArgumentTypeError(f"{value}: must be between 1 and {MAX_COUNT:,}")
     return value
 
 
-def non_negative_float(text: str) -> float:
-    """argparse ``type=``: a finite number >= 0 (seconds, a rate); NaN and infinity are usage errors too (``nan``
-    used to play as fast as possible, and ``--duration nan`` never ended)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not 0.0 <= value < float("inf"):
-        raise argparse.ArgumentTypeError(f"{text}: must be a finite number >= 0")
+def seconds(text: str) -> float:
+    """argparse ``type=``: a duration, a finite number of seconds 0..``MAX_SECONDS``; NaN, infinity and overflowing
+    values are usage errors (``nan`` used to play as fast as possible, ``--duration nan`` never ended, and
+    ``--timeout 1e20`` overflowed the OS's wait)."""
+    value = _number(text, float)
+    if not 0.0 <= value <= MAX_SECONDS:  # NaN too
+        raise argparse.ArgumentTypeError(f"{text}: must be a number of seconds from 0 to {MAX_SECONDS:g}")
+    return value
+
+
+def positive_seconds(text: str) -> float:
+    """argparse ``type=``: as :func:`seconds`, but > 0 (an interval between updates)."""
+    value = seconds(text)
+    if value <= 0.0:
+        raise argparse.ArgumentTypeError(f"{text}: must be > 0 s")
+    return value
+
+
+def rate(text: str) -> float:
+    """argparse ``type=``: a replay rate, times real time: 0 (as fast as possible) or ``MIN_RATE``..``MAX_RATE``."""
+    value = _number(text, float)
+    if not (value == 0.0 or MIN_RATE <= value <= MAX_RATE):  # NaN too
+        raise argparse.ArgumentTypeError(f"{text}: must be 0 (as fast as possible) or {MIN_RATE:g} to {MAX_RATE:g}")
     return value
 
 

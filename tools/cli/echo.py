@@ -23,7 +23,7 @@ import argparse
 import re
 from typing import Any
 
-from .common import add_zenoh_arguments, key_expr, non_negative_float
+from .common import add_zenoh_arguments, key_expr, seconds
 
 #: one segment of a field path: a name or a list index
 _SEGMENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*|\d+")
@@ -68,9 +68,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     stop = parser.add_mutually_exclusive_group()
     stop.add_argument("--once", action="store_true", help="exit after the first message (= --count 1)")
     stop.add_argument("--count", type=int, default=0, help="exit after this many messages (0: no limit)")
-    parser.add_argument(
-        "--timeout", type=non_negative_float, default=0.0, help="exit after this many seconds (0: never)"
-    )
+    parser.add_argument("--timeout", type=seconds, default=0.0, help="exit after this many seconds (0: never)")
     add_zenoh_arguments(parser)
 
 

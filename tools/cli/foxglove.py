@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import argparse
 
-from .common import add_zenoh_arguments, key_expr, non_negative_float, port_number
+from .common import add_zenoh_arguments, key_expr, port_number, seconds
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -40,9 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scenario", help="scenario .yaml (or name) for the frames and the map origin")
     parser.add_argument("--scenarios-dir", help="where start markers' scenarios are looked up (default scenarios)")
     parser.add_argument("--no-raw", action="store_true", help="serve only the Foxglove scene and map channels")
-    parser.add_argument(
-        "--timeout", type=non_negative_float, default=0.0, help="exit after this many seconds (0: never)"
-    )
+    parser.add_argument("--timeout", type=seconds, default=0.0, help="exit after this many seconds (0: never)")
     add_zenoh_arguments(parser)
 
 

@@ -14,23 +14,23 @@ from __future__ import annotations
 
 import argparse
 
-from .common import add_zenoh_arguments, key_expr, non_negative_float
+from .common import add_zenoh_arguments, key_expr, non_negative_int, positive_int, positive_seconds, seconds
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("key_expr", type=key_expr, help="Zenoh key expression, e.g. fixstream/truth/**")
-    parser.add_argument("--window", type=int, default=10_000, help="intervals per key the statistics use")
+    parser.add_argument("--window", type=positive_int, default=10_000, help="intervals per key the statistics use")
     parser.add_argument(
         "--clock",
         choices=["receive", "stamp"],
         default="receive",
         help="measure intervals between receive times or between header.stamp_ns",
     )
-    parser.add_argument("--interval", type=float, default=1.0, help="seconds between printed updates")
+    parser.add_argument("--interval", type=positive_seconds, default=1.0, help="seconds between printed updates")
+    parser.add_argument("--duration", type=seconds, default=0.0, help="stop after this many seconds (0: when stopped)")
     parser.add_argument(
-        "--duration", type=non_negative_float, default=0.0, help="stop after this many seconds (0: when stopped)"
+        "--count", type=non_negative_int, default=0, help="stop after this many messages in all (0: no limit)"
     )
-    parser.add_argument("--count", type=int, default=0, help="stop after this many messages in all (0: no limit)")
     parser.add_argument("--json", action="store_true", help="only the final statistics, one JSON object per key")
     add_zenoh_arguments(parser)
 

@@ -14,13 +14,13 @@ from __future__ import annotations
 import argparse
 
 from . import progress
-from .common import non_negative_int, positive_int
+from .common import positive_int, seed
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scenario", help="scenario .yaml or a scenario name in --dir")
     parser.add_argument("--runs", type=positive_int, required=True, help="number of Monte-Carlo runs")
-    parser.add_argument("--seed", type=non_negative_int, help="root seed (default: the scenario's seed)")
+    parser.add_argument("--seed", type=seed, help="root seed (default: the scenario's seed)")
     parser.add_argument("--out", required=True, help="metrics JSON file to write")
     parser.add_argument("--workers", type=int, help="processes (default: os.cpu_count())")
     parser.add_argument(

@@ -24,7 +24,7 @@ import argparse
 from typing import Any
 
 from . import progress
-from .common import add_zenoh_arguments, key_chunk, key_expr, non_negative_float, non_negative_int
+from .common import add_zenoh_arguments, key_chunk, key_expr, non_negative_int, rate, seconds, seed
 
 #: ``--wait-timeout`` of a replay when not given (a scenario uses its file's ``wait_timeout_s``)
 REPLAY_WAIT_TIMEOUT_S = 30.0
@@ -52,11 +52,11 @@ def _wait_for(text: str) -> str:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", help="scenario .yaml/.yml, a scenario name in --dir, or a recording .mcap")
-    parser.add_argument("--rate", type=non_negative_float, default=1.0, help="times real time; 0 = as fast as possible")
+    parser.add_argument("--rate", type=rate, default=1.0, help="times real time; 0 = as fast as possible")
     parser.add_argument(
         "--instance", type=key_chunk, default="default", help="player instance (header.source player/<instance>)"
     )
-    parser.add_argument("--seed", type=non_negative_int, help="override the scenario's seed")
+    parser.add_argument("--seed", type=seed, help="override the scenario's seed")
     parser.add_argument(
         "--run", type=non_negative_int, help="play Monte-Carlo run I of --seed (as fixstream mc computes it)"
     )
@@ -71,15 +71,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--wait-timeout",
-        type=non_negative_float,
+        type=seconds,
         metavar="S",
         help="seconds to wait for the services; default: the scenario file's wait_timeout_s, for a recording"
         f" {REPLAY_WAIT_TIMEOUT_S:g}",
     )
     parser.add_argument("--dir", help="scenario directory for names (default $FIXSTREAM_SCENARIOS_DIR or scenarios)")
-    parser.add_argument(
-        "--linger", type=non_negative_float, default=0.5, help="seconds to stay connected after the end marker"
-    )
+    parser.add_argument("--linger", type=seconds, default=0.5, help="seconds to stay connected after the end marker")
     progress.add_arguments(parser)
     rec = parser.add_argument_group("replay of a recording (.mcap)")
     which = rec.add_mutually_exclusive_group()

@@ -15,6 +15,8 @@ import zenoh
 from shared.session import open_session
 from shared.settings import ZenohSettings
 
+from .common import seconds
+
 log = logging.getLogger("fixstream.router")
 #: the router's wait before it closes a link whose queue a blocking message cannot enter, s
 ROUTER_BLOCK_CLOSE_S = 60.0
@@ -31,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--block-close-s",
-        type=float,
+        type=seconds,
         default=ROUTER_BLOCK_CLOSE_S,
         help="seconds a blocking message may wait for a slow subscriber's full link before the router closes that"
         " link (Zenoh's default is 5 s: a subscriber busy for 5 s would lose its session and what was in flight)",

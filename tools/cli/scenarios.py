@@ -9,18 +9,17 @@ The file format is documented in docs/scenarios.md.
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import Any
 
-from .common import non_negative_int
+from .common import seed
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("action", nargs="?", choices=["list", "show", "validate"], default="list")
     parser.add_argument("targets", nargs="*", help="show: one scenario name or file; validate: files")
     parser.add_argument("--dir", help="scenario directory (default $FIXSTREAM_SCENARIOS_DIR or scenarios)")
-    parser.add_argument(
-        "--seed", type=non_negative_int, help="show: seed for the stream summary (default: the scenario's)"
-    )
+    parser.add_argument("--seed", type=seed, help="show: seed for the stream summary (default: the scenario's)")
 
 
 def _list(directory: Any) -> int:
@@ -40,7 +39,7 @@ def _list(directory: Any) -> int:
         kinds = ",".join(sorted({sim.kind for sim in s.simulators}))
         desc = " ".join(s.description.split())
         rows.append((f.name, s.name, f"{s.duration_s:9.1f} s", kinds, desc[:70]))
-    widths = [max(len(r[i]) for r in rows if len(r) > i + 1) for i in range(4)]  # the last column is not padded
+    widths = [max((len(r[i]) for r in rows if len(r) > i + 1), default=0) for i in range(4)]  # last: not padded
     for row in rows:
         print(" ".join(cell.ljust(widths[i]) if i < len(row) - 1 else cell for i, cell in enumerate(row)).rstrip())
     return 0
@@ -104,6 +103,12 @@ def run(args: argparse.Namespace) -> int:
     from services.player.timeline import SimulationError
 
     directory = args.dir or default_dir()
+    if args.dir is not None and not Path(args.dir).is_dir():
+        print(f"fixstream scenarios: --dir {args.dir}: not a directory", file=sys.stderr)
+        return 2
+    if args.action == "list" and args.targets:
+        print("fixstream scenarios list: takes no names (show NAME, validate FILE ...)", file=sys.stderr)
+        return 2
     try:
         if args.action == "list":
             return _list(directory)

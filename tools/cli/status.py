@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from .common import add_zenoh_arguments, key_expr, non_negative_float
+from .common import add_zenoh_arguments, key_expr, seconds
 
 
 def selector(text: str) -> str:
@@ -39,7 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="SERVICE (every instance), SERVICE/INSTANCE (e.g. lbl_nav/lbl1) or a key expression such as"
         " fixstream/status/*/default (default: every service)",
     )
-    parser.add_argument("--timeout", type=non_negative_float, default=2.0, help="seconds to wait for replies")
+    parser.add_argument("--timeout", type=seconds, default=2.0, help="seconds to wait for replies")
     parser.add_argument("--json", action="store_true", help="print the raw JSON replies, one per line")
     add_zenoh_arguments(parser)
 

@@ -15,12 +15,12 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from .common import add_zenoh_arguments, key_expr, non_negative_float
+from .common import add_zenoh_arguments, key_expr, seconds
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--key", type=key_expr, default="fixstream/**", help="key expression to listen on")
-    parser.add_argument("--duration", type=non_negative_float, default=2.0, help="seconds to listen before printing")
+    parser.add_argument("--duration", type=seconds, default=2.0, help="seconds to listen before printing")
     parser.add_argument("--json", action="store_true", help="one JSON object per key")
     add_zenoh_arguments(parser)
 

@@ -20,6 +20,8 @@ import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from .common import seconds
+
 if TYPE_CHECKING:
     from ..stack.console import Console
 
@@ -32,15 +34,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-f", "--file", type=Path, help="compose file (default: compose.yaml, searched upwards)")
     parser.add_argument("--env-file", type=Path, help="variables for interpolation (default: .env beside the file)")
     parser.add_argument(
-        "-t", "--timeout", type=float, help="seconds each service gets to stop before SIGKILL (default: 10)"
+        "-t", "--timeout", type=seconds, help="seconds each service gets to stop before SIGKILL (default: 10)"
     )
-    parser.add_argument("--ready-timeout", type=float, default=60.0, help="seconds to wait for a dependency")
+    parser.add_argument("--ready-timeout", type=seconds, default=60.0, help="seconds to wait for a dependency")
     parser.add_argument(
         "--recordings", type=Path, help=f"host directory for recordings (sets ${RECORDINGS_VAR}; default ./recordings)"
     )
     parser.add_argument(
         "--drain",
-        type=float,
+        type=seconds,
         default=30.0,
         help="at most this many seconds, after the driver's end, for the stack to settle before it is stopped (every "
         "service's inbox empty and nothing more arriving: the recording then holds the whole run); 0: stop at once",

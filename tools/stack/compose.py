@@ -153,7 +153,7 @@ def load_compose(
     warnings: list[str] = []
     try:
         variables = interpolation_variables(directory, env_file, environ, overrides, warnings.append)
-        raw = yaml.safe_load(path.read_text())
+        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
         if not isinstance(raw, dict) or not isinstance(raw.get("services"), dict):
             raise ComposeError(f"{path}: expected a mapping with a 'services' mapping")
         data = interpolate_tree(raw, variables, warnings.append)
@@ -161,6 +161,8 @@ def load_compose(
         raise ComposeError(f"{path}: {exc}") from None
     except yaml.YAMLError as exc:
         raise ComposeError(f"{path}: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ComposeError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     services = {str(name): _service(str(name), body or {}, directory) for name, body in data["services"].items()}
     for spec in services.values():
         for dep in spec.depends_on:

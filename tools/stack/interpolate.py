@@ -152,7 +152,11 @@ def parse_env_file(path: Path, env: Mapping[str, str] | None = None, warn: Warn 
     """
     result: dict[str, str] = {}
     base = dict(env or {})
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise InterpolationError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
+    for lineno, line in enumerate(text.splitlines(), start=1):
         text = line.strip()
         if not text or text.startswith("#"):
             continue
