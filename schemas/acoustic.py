@@ -6,7 +6,7 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
-from .base import Message, StrictModel, Vec3
+from .base import Message, StrictModel, Vec3, VecComponent
 
 #: speed of light is irrelevant here; ranges under water never exceed this
 MAX_ACOUSTIC_RANGE_M = 50_000.0
@@ -14,8 +14,8 @@ MAX_ACOUSTIC_RANGE_M = 50_000.0
 
 class Beacon(StrictModel):
     beacon_id: str = Field(min_length=1, max_length=64)
-    x_east_m: float
-    y_north_m: float
+    x_east_m: VecComponent
+    y_north_m: VecComponent
     depth_m: float = Field(ge=-20.0, le=11_000.0)
 
 

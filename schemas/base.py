@@ -76,8 +76,15 @@ def _check_vec(n: int) -> Any:
     return AfterValidator(check)
 
 
-Vec2 = Annotated[list[float], _check_vec(2)]
-Vec3 = Annotated[list[float], _check_vec(3)]
+#: the largest magnitude of a vector component (positions, velocities, accelerations, angles; SI units): a million
+#: km, beyond anything a sensor here measures. An unbounded component once let 1e300 in, whose square overflowed to
+#: inf inside a filter and failed every later message of the run (``internal_error``)
+VEC_COMPONENT_MAX = 1e9
+#: one such component, also a coordinate given on its own (a beacon's east and north)
+VecComponent = Annotated[float, Field(ge=-VEC_COMPONENT_MAX, le=VEC_COMPONENT_MAX)]
+
+Vec2 = Annotated[list[VecComponent], _check_vec(2)]
+Vec3 = Annotated[list[VecComponent], _check_vec(3)]
 
 
 def _check_covariance(m: list[list[float]]) -> list[list[float]]:

@@ -6,9 +6,10 @@ the weights sum to one, the covariances are symmetric and positive semi-definite
 only beacons, with epochs increasing, and it grants no departure without ``min_beacons`` other beacons.
 
 Inputs: a valid 3-minute REF-inside stream of one moving AUV (the simulation's), then a Hypothesis-drawn list of
-perturbed messages — valid-but-extreme values (the schema's limits, kilometre offsets, 1e12 m positions), duplicates
-and replays of earlier messages, stamps going backwards (by 1 ns too: the ``ValueError: DR sample at -1e-09 s
-precedes the last one`` of a DEPARTED after a DR sample), unknown senders and nodes — then the rest of the stream.
+perturbed messages — valid-but-extreme values (the schema's limits, kilometre offsets, positions at the schema's
+bound of 1e9 m), duplicates and replays of earlier messages, stamps going backwards (by 1 ns too: the ``ValueError:
+DR sample at -1e-09 s precedes the last one`` of a DEPARTED after a DR sample), unknown senders and nodes — then the
+rest of the stream.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from hypothesis import strategies as st
 
 from schemas import AcousticArrival, Attitude, BeaconTable, Depth, Header, Message, NavPacket, SoundSpeed, SpeedLog
 from schemas.acoustic import Beacon
+from schemas.base import VEC_COMPONENT_MAX
 from schemas.rd_nav import BeaconAssignment, VehicleStatus
 from services.coordinator.config import CoordinatorConfig
 from services.coordinator.core import CoordinatorCore
@@ -85,7 +87,11 @@ STAMP_OFFSETS_NS = st.one_of(
     st.sampled_from([-1, 0, 1, -1_000_000_000, 3_600_000_000_000, -3_600_000_000_000]),
     st.integers(-(10**13), 10**13),
 )
-BIG = st.one_of(st.floats(-1e12, 1e12, allow_nan=False), st.sampled_from([0.0, -0.0, 1e12, -1e12, 5e-324]))
+#: a vector component (Vec3): up to the schema's bound, ±1e9 (beyond it a message is refused before any core)
+VEC = st.one_of(
+    st.floats(-VEC_COMPONENT_MAX, VEC_COMPONENT_MAX),
+    st.sampled_from([0.0, -0.0, VEC_COMPONENT_MAX, -VEC_COMPONENT_MAX, 5e-324]),
+)
 
 
 @st.composite
@@ -128,7 +134,7 @@ def perturbation(draw: st.DrawFn, base_ns: int) -> Message:
             cycle_seq=draw(st.integers(0, 2**16 - 1)),
             assignment_epoch=draw(st.integers(0, 5)),
             node_id=draw(st.sampled_from([pk.node_id, "n1", "n9", None])),
-            pos_ned_m=[draw(BIG), draw(BIG), draw(st.floats(-1e4, 1e4))],
+            pos_ned_m=[draw(VEC), draw(VEC), draw(st.floats(-1e4, 1e4))],
             pos_sigma_m=draw(st.floats(0.0, 1000.0)),
             reply_delay_s=draw(st.one_of(st.none(), st.floats(0.0, 60.0))),
         )
@@ -140,7 +146,7 @@ def perturbation(draw: st.DrawFn, base_ns: int) -> Message:
         )
     if kind == "status":
         event = draw(st.sampled_from(["DEPARTED", "DOCKED", "SERVICE_DONE", "AT_BASE", "FAULT", "HEARTBEAT"]))
-        pos = draw(st.one_of(st.none(), st.lists(BIG, min_size=3, max_size=3)))
+        pos = draw(st.one_of(st.none(), st.lists(VEC, min_size=3, max_size=3)))
         return VehicleStatus(
             header=_hdr(stamp),
             auv_id=draw(st.sampled_from(["auv4", "auv1"])),
@@ -162,7 +168,7 @@ def perturbation(draw: st.DrawFn, base_ns: int) -> Message:
             cycle_period_s=draw(st.floats(1e-3, 600.0)),
         )
     beacons = [
-        Beacon(beacon_id=k, x_east_m=draw(BIG), y_north_m=draw(BIG), depth_m=draw(st.floats(-20.0, 11_000.0)))
+        Beacon(beacon_id=k, x_east_m=draw(VEC), y_north_m=draw(VEC), depth_m=draw(st.floats(-20.0, 11_000.0)))
         for k in draw(st.lists(st.sampled_from(["n1", "n2", "n3", "n4"]), min_size=1, max_size=4, unique=True))
     ]
     return BeaconTable(header=_hdr(stamp, "base_ned"), beacons=beacons)
@@ -216,13 +222,13 @@ def coordinator_input(draw: st.DrawFn, t_ns: int) -> Message:
     kind = draw(st.sampled_from(["status", "status", "status", "heard", "table"]))
     auv = draw(st.sampled_from([f"auv{k}" for k in range(1, 8)]))
     if kind == "status":
-        route = draw(st.lists(st.lists(BIG, min_size=3, max_size=3), max_size=4))
+        route = draw(st.lists(st.lists(VEC, min_size=3, max_size=3), max_size=4))
         return VehicleStatus(
             header=_hdr(stamp, "base_ned"),
             auv_id=auv,
             event=draw(st.sampled_from(["DOCKED", "SERVICE_DONE", "AT_BASE", "DEPARTED", "FAULT", "HEARTBEAT"])),
             node_id=draw(st.sampled_from(["n1", "n2", "n3", "n4", "nowhere", None])),
-            position_ned_m=draw(st.one_of(st.none(), st.lists(BIG, min_size=3, max_size=3))),
+            position_ned_m=draw(st.one_of(st.none(), st.lists(VEC, min_size=3, max_size=3))),
             planned_route_ned_m=route,
             speed_mps=draw(st.one_of(st.none(), st.floats(0.0, 10.0))),
         )
@@ -240,7 +246,7 @@ def coordinator_input(draw: st.DrawFn, t_ns: int) -> Message:
     node = draw(st.sampled_from(["n1", "n2", "n3", "n4"]))
     return BeaconTable(
         header=_hdr(stamp, "base_ned"),
-        beacons=[Beacon(beacon_id=node, x_east_m=draw(BIG), y_north_m=draw(BIG), depth_m=100.0)],
+        beacons=[Beacon(beacon_id=node, x_east_m=draw(VEC), y_north_m=draw(VEC), depth_m=100.0)],
     )
 
 

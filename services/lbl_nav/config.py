@@ -144,7 +144,10 @@ class LblNavConfig(BaseModel):
     )
     dr_only_after_s: float = Field(default=30.0, ge=0.0, description="[IMPL] DR_ONLY when no range used for this, s")
     max_epochs_per_step: int = Field(
-        default=100_000, ge=1, description="[IMPL] a stamp jump beyond this many epochs resets the estimator"
+        default=1_000,
+        ge=1,
+        description="[IMPL] a stamp jump beyond this many epochs resets the estimator (each epoch of a jump is closed "
+        "and published: 100,000 once cost 15 s in one message)",
     )
     sigma_depth_m: float = Field(
         default=0.0, ge=0.0, description="[IMPL] depth std reported in the fix's position covariance"

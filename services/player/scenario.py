@@ -243,7 +243,8 @@ def load_scenario(path: str | Path) -> Scenario:
     except OSError as exc:
         raise ScenarioError(f"{p}: cannot read: {exc.strerror or exc}") from None
     except UnicodeDecodeError as exc:
-        raise ScenarioError(f"{p}: not UTF-8 text (byte {exc.start}: {exc.reason}); a scenario is a YAML file") from None
+        problem = f"not UTF-8 text (byte {exc.start}: {exc.reason}); a scenario is a YAML file"
+        raise ScenarioError(f"{p}: {problem}") from None
     try:
         data = yaml_numbers.load(text)
     except yaml.YAMLError as exc:

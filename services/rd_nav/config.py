@@ -56,6 +56,14 @@ class RdNavConfig(BaseModel):
     q_rel: float = Field(default=0.07, ge=0.0, description="process noise per step, fraction of DR path [E]")
     q_abs_m: float = Field(default=0.3, ge=0.0, description="process noise per step, absolute, m [E]")
     q_step_s: float = Field(default=10.0, gt=0.0, description="time step the q figures refer to (one REF cycle), s [E]")
+    max_predict_steps: int = Field(
+        default=500,
+        ge=1,
+        le=1_000_000,
+        description="dr_errors: a prediction takes at most this many steps; a longer gap (beyond max_predict_steps x "
+        "q_step_s, 5,000 s at the defaults) is predicted in longer steps, so that one input stamped far ahead (a time "
+        "jump) costs milliseconds, not hours [E]",
+    )
     q_drift_mps: float = Field(
         default=0.05,
         ge=0.0,

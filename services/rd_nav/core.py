@@ -67,6 +67,9 @@ from .rescue import LateArrivalRescue
 from .shadow import ShadowUpdater
 from .starter import SnapshotStarter
 
+#: the largest ``cycles_since_update`` a fix reports (an int32; the schema and msgpack take it)
+_MAX_CYCLES = 2**31 - 1
+
 
 def _finite(*vals: float) -> bool:
     return all(math.isfinite(v) for v in vals)
@@ -582,7 +585,8 @@ class RdNavCore:
     def _cycles_since_update(self, t: float) -> int:
         if self.t_last_update is None:
             return 0
-        return max(0, math.floor((t - self.t_last_update) / self.cycle_period_s + 0.5))
+        # at most 2**31 - 1: a schema-valid cycle period of 1e-300 s once made 1e301 cycles, which msgpack cannot encode
+        return min(max(0, math.floor((t - self.t_last_update) / self.cycle_period_s + 0.5)), _MAX_CYCLES)
 
     # ====================================================================== prediction =====
     def _growth(self, a: DrPoint, b: DrPoint) -> float:
@@ -629,7 +633,7 @@ class RdNavCore:
         assert self.drift is not None and self.dr_state is not None
         cfg = self.cfg
         a = self.dr_state
-        n = max(1, round((t - a.t_s) / cfg.q_step_s))
+        n = max(1, min(cfg.max_predict_steps, round((t - a.t_s) / cfg.q_step_s)))
         for k in range(1, n + 1):
             tk = t if k == n else a.t_s + (t - a.t_s) * k / n
             if k < n and not self.dr.covers(tk):

@@ -144,8 +144,18 @@ _LOG_2PI = math.log(2.0 * math.pi)
 
 def log_likelihood_3(nis_value: float, S: Floats) -> float:
     """ln N(y; 0, S) = -1/2 (NIS + ln det S + 3 ln 2 pi) of one 3-D innovation from its NIS (e.g. the one
-    :func:`update_selection` returns), det S by :func:`det_3x3`. S must be positive definite."""
-    return -0.5 * (nis_value + math.log(det_3x3(S)) + 3.0 * _LOG_2PI)
+    :func:`update_selection` returns), det S by :func:`det_3x3`; where cancellation leaves that ≤ 0 (an S whose
+    entries span many orders of magnitude, e.g. a range sigma of 1e7 m beside 1e-3° angles), by LU
+    (``slogdet``). ``LinAlgError`` when S is not positive definite (the callers' refusal of the update), never the
+    ``ValueError`` of a logarithm of a negative number."""
+    det = det_3x3(S)
+    if det > 0.0:
+        logdet = math.log(det)
+    else:
+        sign, logdet = np.linalg.slogdet(S)
+        if not sign > 0.0:
+            raise np.linalg.LinAlgError(f"innovation covariance not positive definite (det {det:.3g})")
+    return -0.5 * (nis_value + logdet + 3.0 * _LOG_2PI)
 
 
 def whitening_3x3(S: Floats) -> FloatArray:

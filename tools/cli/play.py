@@ -157,7 +157,10 @@ def _replay(args: argparse.Namespace) -> int:
     except WaitTimeout as exc:  # before OSError: a TimeoutError is one
         print(f"fixstream play: {args.file}: waiting for services: {exc}", file=sys.stderr)
         return exit_codes.TIMEOUT
-    except (McapReadError, OSError) as exc:
+    except McapReadError as exc:  # its message names the file
+        print(f"fixstream play: {exc}", file=sys.stderr)
+        return exit_codes.USAGE
+    except OSError as exc:
         print(f"fixstream play: {args.file}: {exc}", file=sys.stderr)
         return exit_codes.USAGE
     finally:

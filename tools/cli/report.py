@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 
 from . import progress
+from .common import positive_int
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -46,7 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--scenarios-dir", help="where scenario names are looked up (default $FIXSTREAM_SCENARIOS_DIR or scenarios)"
     )
     parser.add_argument("--allow-truncated", action="store_true", help="report the readable part of a truncated file")
-    parser.add_argument("--workers", type=int, help="processes drawing the figures (default: the CPUs, at most 4)")
+    parser.add_argument(
+        "--workers", type=positive_int, help="processes drawing the figures (default: the CPUs, at most 4)"
+    )
     progress.add_arguments(parser, "the progress bars")
     parser.add_argument("--timings", action="store_true", help="print the time of each stage")
 
