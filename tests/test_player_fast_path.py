@@ -21,6 +21,7 @@ from pydantic import ValidationError
 from test_scenario_files import BASE_PLATFORM, REPO
 
 from schemas import Depth, SpeedLog, Truth
+from schemas.base import VEC_COMPONENT_MAX
 from services.player.column_encoding import RowEncoder, uint_class
 from services.player.scenario import Scenario, load_scenario, parse_scenario
 from services.player.simulators import Event, ScenarioContext, SimParams, register
@@ -132,6 +133,10 @@ def test_another_simulator_on_a_column_key_shares_its_seq_and_keeps_tie_order() 
 
 _speed = st.floats(-30.0, 30.0, allow_nan=False, allow_infinity=False)
 _any = st.floats(allow_nan=False, allow_infinity=False)
+#: a vector component, anywhere in the schema's range (Vec3: within ±VEC_COMPONENT_MAX), its ends included
+_component = st.one_of(
+    st.floats(-VEC_COMPONENT_MAX, VEC_COMPONENT_MAX), st.sampled_from([VEC_COMPONENT_MAX, -VEC_COMPONENT_MAX, 5e-324])
+)
 _uint62 = st.integers(0, 2**62)
 # values at the msgpack width boundaries, so that every class and every class change is drawn often
 _edges = st.sampled_from([0, 1, 127, 128, 255, 256, 65535, 65536, 2**32 - 1, 2**32, 2**62])
@@ -166,7 +171,7 @@ def test_speed_log_rows_encode_as_their_messages(
     data=st.data(),
 )
 def test_truth_rows_with_lists_and_a_nested_dict_encode_as_their_messages(n: int, data: st.DataObject) -> None:
-    matrix = st.lists(st.lists(_any, min_size=3, max_size=3), min_size=n, max_size=n)
+    matrix = st.lists(st.lists(_component, min_size=3, max_size=3), min_size=n, max_size=n)
     stamps = sorted(data.draw(st.lists(st.one_of(_uint62, _edges), min_size=n, max_size=n)))
     seqs = data.draw(st.lists(st.one_of(st.integers(0, 2**63 - 1), _edges), min_size=n, max_size=n))
     columns = {
