@@ -130,3 +130,12 @@ def test_a_scheduler_address_dask_cannot_parse_is_refused_at_once(tmp_path: Path
             check_scheduler_address(bad)
     for good in ("tcp://127.0.0.1:8786", "scheduler:8786", "tls://host:1"):
         check_scheduler_address(good)
+
+
+@pytest.mark.parametrize("option", [["--seed", "3"], ["--run", "1"], ["--instance", "other"]])
+def test_scenario_options_on_a_recording_are_refused_not_ignored(
+    option: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A recording replays its messages as recorded, headers included: these options used to be silently ignored."""
+    assert main(["play", "rec.mcap", *option]) == 2
+    assert f"{option[0]} apply to a scenario file, not a recording" in capsys.readouterr().err

@@ -3,7 +3,10 @@
 Records go out in file order (the recorder's receive order), paced by their log times at ``rate`` times real time
 (0: as fast as possible); in a fixstream recording the log time is the data stamp, so a replay at ``--rate 1`` takes
 the scenario's own duration whatever rate it was recorded at, and a player's start marker restarts the pacing (a new
-run's clock starts again). Each record goes on its channel's topic (the key expression it was recorded from),
+run's clock starts again; a start marker from another source does not). A gap in the log times longer than
+``max_gap_s`` (60 s by default) is paced as ``max_gap_s`` and counted (``ReplayResult.gaps_shortened``): one record
+stamped years ahead, which a recording may hold, once held a replay at ``--rate 1`` for as long. Each record goes
+on its channel's topic (the key expression it was recorded from),
 rebuilt as its pydantic model and re-encoded with :mod:`shared.codec`, so the bytes on the wire are those the
 original publisher sent (headers are kept as recorded: source, seq, stamps). A payload the recorder rejected
 (``fixstream/rejected/<key>``) goes back byte for byte on its original key with its original encoding. A record
@@ -32,6 +35,7 @@ import zenoh
 from schemas import ScenarioMarker
 from shared import codec
 from shared.recovery import Recovery
+from shared.service import PLAYER_PREFIX
 
 from .pacing import Pacer
 from .publish import Publishers
@@ -41,6 +45,8 @@ log = logging.getLogger("fixstream.replay")
 #: wall time a replay leaves between a start marker and the records before it, s:
 #: less than a service's stray window (``Service.stray_window_s``, 0.5 s), so a run's own samples never look stray
 START_MARKER_GAP_S = 0.25
+#: the longest gap between two records' log times a replay paces, s of data time (longer ones are shortened to it)
+MAX_REPLAY_GAP_S = 60.0
 
 
 @dataclass
@@ -53,6 +59,8 @@ class ReplayResult:
     left_out: dict[str, int] = field(default_factory=dict)
     completed: bool = True
     wall_s: float = 0.0
+    #: gaps in the log times longer than the replay's ``max_gap_s``, each paced as ``max_gap_s``
+    gaps_shortened: int = 0
 
     @property
     def total(self) -> int:
@@ -68,11 +76,13 @@ def replay(
     select: Callable[[str], bool] | None = None,
     progress: Callable[[int, int], None] | None = None,
     recovery: Recovery | None = None,
+    max_gap_s: float = MAX_REPLAY_GAP_S,
 ) -> ReplayResult:
     """Publish the records of ``path`` that ``select(topic)`` keeps (None: every fixstream record) on their topics;
     ``progress(records published, log-time ns since the first)`` after each. Raises ``mcap_io.McapReadError`` for an
     unreadable file. ``recovery``: the keys published with a cache (None: as the environment's
-    :class:`ZenohSettings` says; shared/recovery.py)."""
+    :class:`ZenohSettings` says; shared/recovery.py). ``max_gap_s``: the longest gap between log times paced (module
+    doc)."""
     from shared import mcap_io
 
     pacer = Pacer(rate, stop)
@@ -85,6 +95,9 @@ def replay(
     last_log_time: int | None = None
     t0 = time.monotonic()
     last_put = -math.inf
+    max_gap_ns = round(max_gap_s * 1e9)
+    paced_ns = 0  # the data clock the pacer follows: the log times, with every gap shortened to max_gap_ns
+    gaps_shortened = 0
     try:
         for record in mcap_io.iter_records(path):
             if mcap_io.is_rejected(record):
@@ -117,7 +130,12 @@ def replay(
                     log.warning("skipping a record on %s at %d ns: %s", record.topic, record.log_time_ns, exc)
                     continue
                 key, payload, encoding = record.topic, codec.encode(msg), codec.encoding_of(type(msg))
-                if isinstance(msg, ScenarioMarker) and msg.event == "start" and last_log_time is not None:
+                if (
+                    isinstance(msg, ScenarioMarker)
+                    and msg.event == "start"
+                    and msg.header.source.startswith(PLAYER_PREFIX)
+                    and last_log_time is not None
+                ):
                     pacer, last_log_time = Pacer(rate, stop), None  # a new run: its data clock starts again
                     # what came before the run reaches the services before its start marker, as it did live (the
                     # marker has a subscription of its own: at --rate 0 it could overtake them, and a service then
@@ -125,8 +143,18 @@ def replay(
                     time.sleep(max(0.0, START_MARKER_GAP_S - (time.monotonic() - last_put)))
             if last_log_time is not None and record.log_time_ns < last_log_time:
                 log.debug("log time goes backwards on %s (%d < %d ns)", record.topic, record.log_time_ns, last_log_time)
-            last_log_time = record.log_time_ns if last_log_time is None else max(last_log_time, record.log_time_ns)
-            if not pacer.wait(last_log_time):
+            if last_log_time is None:
+                paced_ns = last_log_time = record.log_time_ns
+            elif record.log_time_ns > last_log_time:
+                gap = record.log_time_ns - last_log_time
+                if gap > max_gap_ns:
+                    gaps_shortened += 1
+                    log.warning(
+                        "log time jumps %.3g s ahead on %s: paced as %g s", gap / 1e9, record.topic, max_gap_ns / 1e9
+                    )
+                paced_ns += min(gap, max_gap_ns)
+                last_log_time = record.log_time_ns
+            if not pacer.wait(paced_ns):
                 completed = False
                 break
             pubs.put_bytes(key, payload, encoding)
@@ -137,7 +165,8 @@ def replay(
                 progress(n_published, max(0, last_log_time - first_log_time))
     finally:
         pubs.close()
-    result = ReplayResult(dict(pubs.counts), dict(skipped), dict(left_out), completed, time.monotonic() - t0)
+    wall_s = time.monotonic() - t0
+    result = ReplayResult(dict(pubs.counts), dict(skipped), dict(left_out), completed, wall_s, gaps_shortened)
     log.info(
         "replayed %d records on %d topics from %s (skipped: %s; left out: %s) in %.2f s",
         result.total,

@@ -23,8 +23,10 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from services.player.replay import MAX_REPLAY_GAP_S
+
 from . import progress
-from .common import add_zenoh_arguments, key_chunk, key_expr, non_negative_int, rate, seconds, seed
+from .common import add_zenoh_arguments, key_chunk, key_expr, non_negative_int, positive_seconds, rate, seconds, seed
 
 #: ``--wait-timeout`` of a replay when not given (a scenario uses its file's ``wait_timeout_s``)
 REPLAY_WAIT_TIMEOUT_S = 30.0
@@ -54,7 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", help="scenario .yaml/.yml, a scenario name in --dir, or a recording .mcap")
     parser.add_argument("--rate", type=rate, default=1.0, help="times real time; 0 = as fast as possible")
     parser.add_argument(
-        "--instance", type=key_chunk, default="default", help="player instance (header.source player/<instance>)"
+        "--instance", type=key_chunk, help="player instance (header.source player/<instance>; default 'default')"
     )
     parser.add_argument("--seed", type=seed, help="override the scenario's seed")
     parser.add_argument(
@@ -80,6 +82,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--linger", type=seconds, default=0.5, help="seconds to stay connected after the end marker")
     progress.add_arguments(parser)
     rec = parser.add_argument_group("replay of a recording (.mcap)")
+    rec.add_argument(
+        "--max-gap",
+        type=positive_seconds,
+        default=MAX_REPLAY_GAP_S,
+        metavar="S",
+        help="a longer gap between two records' log times is paced as S seconds of data time, and counted",
+    )
     which = rec.add_mutually_exclusive_group()
     which.add_argument(
         "--keys",
@@ -150,6 +159,7 @@ def _replay(args: argparse.Namespace) -> int:
             select=select,
             progress=line.update if line else None,
             recovery=Recovery.of(settings),
+            max_gap_s=args.max_gap,
         )
         if line is not None:
             line.finish()
@@ -171,6 +181,8 @@ def _replay(args: argparse.Namespace) -> int:
         notes.append(f"{left['not_selected']} on keys not replayed ({select.describe()} replayed)")
     if left.get("foreign_channel"):
         notes.append(f"{left['foreign_channel']} on Foxglove/foreign channels")
+    if result.gaps_shortened:
+        notes.append(f"{result.gaps_shortened} gaps in the log times paced as {args.max_gap:g} s (--max-gap)")
     print(
         f"replayed {result.total} records on {len(result.published)} keys from {args.file} "
         f"({_skipped(result.skipped)}) in {result.wall_s:.2f} s" + (f"; left out: {', '.join(notes)}" if notes else ""),
@@ -193,6 +205,11 @@ def run(args: argparse.Namespace) -> int:
         print("fixstream play: --wait-timeout must be > 0", file=sys.stderr)
         return exit_codes.USAGE
     if Path(args.file).suffix == ".mcap":
+        options = (("--seed", args.seed), ("--run", args.run), ("--instance", args.instance))
+        given = [o for o, v in options if v is not None]
+        if given:  # a recording replays its messages as recorded, headers included: these would be silently ignored
+            print(f"fixstream play: {', '.join(given)} apply to a scenario file, not a recording", file=sys.stderr)
+            return exit_codes.USAGE
         return _replay(args)
     if args.keys or args.exclude or args.all:
         print("fixstream play: --keys, --exclude and --all select keys of a recording (.mcap)", file=sys.stderr)
@@ -229,7 +246,7 @@ def run(args: argparse.Namespace) -> int:
             scenario,
             seed=args.seed,
             run=args.run,
-            instance=args.instance,
+            instance=args.instance or "default",
             rate=args.rate,
             wait=not args.no_wait,
             stop=stop,
