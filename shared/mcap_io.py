@@ -51,6 +51,8 @@ from typing import Any, BinaryIO
 
 from schemas import MODELS, Message
 
+from .codec import MAX_PAYLOAD_BYTES
+
 #: the 8 bytes every MCAP file starts (and a finalised file ends) with
 MAGIC = b"\x89MCAP0\r\n"
 #: schema encoding and message encoding the recorder uses (MCAP well-known values, read by Foxglove)
@@ -78,7 +80,7 @@ class McapReadError(ValueError):
 
     ``str(exc)`` names the file (or topic) and the problem; ``reason`` is a short code for counters:
     ``missing``, ``unreadable``, ``empty``, ``not_mcap``, ``truncated_header``, ``corrupt`` (file level),
-    ``unknown_schema``, ``schema_version``, ``bad_encoding``, ``invalid_message`` (record level).
+    ``unknown_schema``, ``schema_version``, ``bad_encoding``, ``invalid_message``, ``too_large`` (record level).
     """
 
     def __init__(self, where: str | os.PathLike[str], problem: str, reason: str = "unreadable") -> None:
@@ -292,15 +294,16 @@ def _check_start(path: Path, f: BinaryIO, size: int) -> tuple[str, str]:
         raise McapReadError(path, f"corrupt header record: {exc}", "corrupt") from None
 
 
-def iter_records(path: str | os.PathLike[str]) -> Iterator[Record]:
+def iter_records(path: str | os.PathLike[str], progress: ReadProgress | None = None) -> Iterator[Record]:
     """Every message of an MCAP file in file order (the recorder's receive order).
 
     Reads finalised files and files whose writer died: iteration ends quietly at the first incomplete
-    record, so a crashed recording yields every message of its complete chunks. Raises
+    record, so a crashed recording yields every message of its complete chunks (``progress``, when given, says
+    afterwards whether the data section ended properly and where the last complete record ended). Raises
     :class:`McapReadError` for a missing, empty or non-MCAP file, one truncated inside its header, or a
     complete record that is corrupt (bad chunk compression or CRC, message on an undeclared channel).
     """
-    return (item for item in iter_items(path) if type(item) is Record)
+    return (item for item in iter_items(path, progress) if type(item) is Record)
 
 
 @dataclass(frozen=True)
@@ -332,8 +335,9 @@ class ChunkSeen:
 
 
 @dataclass
-class _Progress:
-    """How far a pass over the data section got."""
+class ReadProgress:
+    """How far a pass over the data section got (``end`` short of the file's size and no ``footer``: the file was cut
+    short, or is still being written)."""
 
     header: tuple[str, str] = ("", "")  # (profile, library)
     end: int = 0  # offset after the last complete record
@@ -343,12 +347,12 @@ class _Progress:
 Item = Record | MetadataRecord | AttachmentRecord | ChunkSeen
 
 
-def iter_items(path: str | os.PathLike[str], progress: _Progress | None = None) -> Iterator[Item]:
+def iter_items(path: str | os.PathLike[str], progress: ReadProgress | None = None) -> Iterator[Item]:
     """Messages, metadata, attachments and chunk boundaries of the data section, in file order (see
     :func:`iter_records` for what is read and what raises). ``progress`` is filled as the pass goes."""
     p = Path(path)
     f = _open(p)
-    progress = progress if progress is not None else _Progress()
+    progress = progress if progress is not None else ReadProgress()
     try:
         size = os.fstat(f.fileno()).st_size
         progress.header = _check_start(p, f, size)  # eagerly: a bad file raises here, not at the first next()
@@ -359,7 +363,7 @@ def iter_items(path: str | os.PathLike[str], progress: _Progress | None = None) 
     return _iter_data_section(p, f, size, progress)
 
 
-def _iter_data_section(p: Path, f: BinaryIO, size: int, progress: _Progress) -> Iterator[Item]:
+def _iter_data_section(p: Path, f: BinaryIO, size: int, progress: ReadProgress) -> Iterator[Item]:
     with f:
         schemas: dict[int, _Schema] = {}
         channels: dict[int, _Channel] = {}
@@ -478,8 +482,19 @@ def model_of(record: Record) -> type[Message]:
     return model
 
 
+#: the largest JSON message decoded, bytes: four times the largest payload a service or the recorder takes
+#: (``codec.MAX_PAYLOAD_BYTES``, msgpack; its JSON is at most about 2.5 times as long). A hostile file's one 50 MB
+#: message once cost a replay and a report 1.1 GB each, for a message no service would take
+MAX_JSON_MESSAGE_BYTES = 4 * MAX_PAYLOAD_BYTES
+
+
 def decode_record(record: Record) -> Message:
-    """JSON message data back to its strict pydantic model; McapReadError names the topic and the problem."""
+    """JSON message data back to its strict pydantic model; McapReadError names the topic and the problem (a message
+    over ``MAX_JSON_MESSAGE_BYTES``: ``too_large``, before any decoding)."""
+    if len(record.data) > MAX_JSON_MESSAGE_BYTES:
+        raise McapReadError(
+            record.topic, f"{len(record.data)} bytes of JSON > {MAX_JSON_MESSAGE_BYTES}: not decoded", "too_large"
+        )
     if record.message_encoding != MESSAGE_ENCODING:
         raise McapReadError(
             record.topic, f"message encoding {record.message_encoding!r}, expected 'json'", "bad_encoding"
@@ -636,7 +651,7 @@ class Scan:
 def scan(path: str | os.PathLike[str]) -> Scan:
     """Read a recording once (finalised or cut short) and summarise it; McapReadError as :func:`iter_records`."""
     p = Path(path)
-    progress = _Progress()
+    progress = ReadProgress()
     topics: dict[str, TopicStats] = {}
     metadata: list[MetadataRecord] = []
     attachments: list[AttachmentRecord] = []

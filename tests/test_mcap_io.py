@@ -13,6 +13,7 @@ from samples import EXAMPLES
 from schemas.export import json_schema
 from shared.mcap_io import (
     MAGIC,
+    MAX_JSON_MESSAGE_BYTES,
     McapReadError,
     Record,
     count_by_topic,
@@ -211,6 +212,28 @@ def test_decode_record_rejects_bad_json_and_unknown_schema() -> None:
         decode_record(unknown)
 
 
+def test_a_message_too_large_for_any_service_is_refused_before_it_is_decoded() -> None:
+    """A hostile file's one 50 MB JSON message cost a replay and a report 1.1 GB each: it is refused by its size,
+    before the JSON parser or pydantic see it (what they would build is what cost the memory)."""
+    import tracemalloc
+
+    doc = EXAMPLES["Depth"].model_dump(mode="json")
+    doc["padding"] = "x" * (MAX_JSON_MESSAGE_BYTES + 1)  # would also fail validation: extra field
+    data = json.dumps(doc).encode()
+    record = Record("fixstream/x", "fixstream.Depth", "jsonschema", "json", 1, 1, data)
+    tracemalloc.start()
+    try:
+        with pytest.raises(McapReadError, match="not decoded") as info:
+            decode_record(record)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert info.value.reason == "too_large"
+    assert peak < 1_000_000  # nothing of its size was built
+    fits = Record(**{**record.__dict__, "data": EXAMPLES["Depth"].model_dump_json().encode()})
+    assert decode_record(fits) == EXAMPLES["Depth"]
+
+
 def test_scan_and_recover_a_file_cut_inside_its_last_chunk(tmp_path: Path) -> None:
     """scan() tells finalised from truncated and counts what is readable; recover() writes a finalised file that the
     official reader reads message for message (times and sequence kept), metadata and attachments included."""
@@ -249,3 +272,24 @@ def test_metadata_and_attachments_are_read_in_file_order(tmp_path: Path) -> None
     assert [(a.name, a.media_type, a.data, a.log_time_ns) for a in info.attachments] == [
         ("scenario/s.yaml", "application/yaml", b"a: 1", 2)
     ]
+
+
+def test_info_escapes_what_the_file_says_and_keeps_what_is_printable(tmp_path: Path) -> None:
+    """Names, topics and metadata come from the file: a hostile one's terminal escapes once reached the terminal."""
+    from shared.mcap_io import scan
+    from tools.cli.info import describe
+
+    path = tmp_path / "meta.mcap"
+    with path.open("wb") as f:
+        w = Writer(f)
+        w.start(profile="", library="test\x1b]0;title\x07")
+        schema = w.register_schema(name="fixstream.Depth", encoding="jsonschema", data=b"{}")
+        topic = "fixstream/sensor/\x1b[2Jp/depth/d0"
+        ch = w.register_channel(topic=topic, message_encoding="json", schema_id=schema)
+        w.add_message(ch, log_time=1, data=EXAMPLES["Depth"].model_dump_json().encode(), publish_time=1)
+        w.add_metadata("run", {"frame_id": "\x1b[31mred\x1b[0m", "note": "Привет, τ = 5 s"})
+        w.finish()
+    text = describe(scan(path))
+    assert not any((ord(c) < 32 and c != "\n") or ord(c) == 127 for c in text)
+    assert "\\x1b[31mred\\x1b[0m" in text and "\\x1b[2J" in text and "\\x07" in text
+    assert "Привет, τ = 5 s" in text  # printable text from any script stays as it is

@@ -64,9 +64,9 @@ def depth(seq: int) -> Message:
     )
 
 
-def write(path: Path, records: list[tuple[str, Message, int]]) -> None:
+def write(path: Path, records: list[tuple[str, Message, int]], chunk_size: int = 1 << 20) -> None:
     with path.open("wb") as f:
-        w = Writer(f)
+        w = Writer(f, chunk_size=chunk_size)
         w.start(profile="", library="test")
         channels: dict[str, int] = {}
         for key, msg, log_time in records:
@@ -110,3 +110,19 @@ def test_a_gap_beyond_max_gap_is_paced_as_max_gap_and_counted(
     pacers.clear()
     again = replay_module.replay(session, path, rate=1.0, select=lambda key: True, max_gap_s=ahead / 1e9)
     assert again.gaps_shortened == 0 and pacers[0].waits == [S, 2 * S, ahead, ahead + S, ahead + S]
+
+
+def test_a_file_cut_short_replays_its_complete_chunks_and_says_what_it_left(
+    session: Any, pacers: list[FakePacer], tmp_path: Path
+) -> None:
+    """A truncated recording (a crashed recorder, or one still being written) used to replay without a word."""
+    path = tmp_path / "rec.mcap"
+    write(path, [(DEPTH, depth(i), i * S) for i in range(1, 201)], chunk_size=2_000)
+    whole = replay_module.replay(session, path, rate=0.0, select=lambda key: True)
+    assert whole.total == 200 and whole.tail_bytes == 0
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) * 2 // 3])
+    part = replay_module.replay(session, cut, rate=0.0, select=lambda key: True)
+    assert 0 < part.total < 200 and part.completed
+    assert 0 < part.tail_bytes < len(data) * 2 // 3  # the incomplete record's bytes, not read

@@ -119,3 +119,23 @@ def test_without_the_attachment_an_empty_directory_says_what_is_missing(recordin
     assert got["estimators"] == {} and got["run"]["scenario_file"] is None
     assert any("not attached to the recording" in n and "--scenario" in n for n in got["notes"]), got["notes"]
     assert [s["kind"] for s in got["sections"]] == ["terrain_nav"]  # the figures are drawn all the same
+
+
+def test_an_attached_scenario_that_cannot_be_read_is_said_not_called_missing(
+    recordings: dict[str, Path], tmp_path: Path
+) -> None:
+    """A recording-reader audit: a broken scenario attachment was reported as "not attached to the recording" (the
+    reason was collected and never shown)."""
+    from tools.report.carried import read_carried
+    from tools.report.data import find_scenario
+    from tools.report.reading import read_recording
+
+    broken = with_attachments(
+        recordings["bare"], tmp_path / "broken.mcap", [("scenario/terrain_nav_demo.yaml", "application/yaml", b"[:\n")]
+    )
+    carried = read_carried([broken])
+    choice = find_scenario(read_recording([broken], progress=False), None, tmp_path, carried)
+    assert choice.scenario is None
+    assert any("attachment scenario/terrain_nav_demo.yaml: not YAML" in n for n in choice.notes), choice.notes
+    assert any("no readable attachment of it" in n and "--scenario" in n for n in choice.notes), choice.notes
+    assert not any("not attached to the recording" in n for n in choice.notes)

@@ -61,6 +61,9 @@ class ReplayResult:
     wall_s: float = 0.0
     #: gaps in the log times longer than the replay's ``max_gap_s``, each paced as ``max_gap_s``
     gaps_shortened: int = 0
+    #: bytes after the last complete record, not read: the file was cut short (a crashed writer) or is still being
+    #: written (0 for a file whose data section ends properly)
+    tail_bytes: int = 0
 
     @property
     def total(self) -> int:
@@ -98,8 +101,9 @@ def replay(
     max_gap_ns = round(max_gap_s * 1e9)
     paced_ns = 0  # the data clock the pacer follows: the log times, with every gap shortened to max_gap_ns
     gaps_shortened = 0
+    read = mcap_io.ReadProgress()
     try:
-        for record in mcap_io.iter_records(path):
+        for record in mcap_io.iter_records(path, read):
             if mcap_io.is_rejected(record):
                 try:
                     raw = mcap_io.decode_rejected(record)
@@ -166,7 +170,10 @@ def replay(
     finally:
         pubs.close()
     wall_s = time.monotonic() - t0
-    result = ReplayResult(dict(pubs.counts), dict(skipped), dict(left_out), completed, wall_s, gaps_shortened)
+    tail = 0 if not completed or read.footer else max(0, Path(path).stat().st_size - read.end)
+    result = ReplayResult(dict(pubs.counts), dict(skipped), dict(left_out), completed, wall_s, gaps_shortened, tail)
+    if tail:
+        log.warning("%s ends in %d bytes of an incomplete record (cut short, or being written): not read", path, tail)
     log.info(
         "replayed %d records on %d topics from %s (skipped: %s; left out: %s) in %.2f s",
         result.total,

@@ -152,4 +152,10 @@ def describe(s: Any, all_metadata: bool = False) -> str:
     lines.append(f"Attachments ({len(s.attachments)}):")
     for a in s.attachments:
         lines.append(f"  {a.name}  {a.media_type}  {len(a.data)} bytes")
-    return "\n".join(lines)
+    return "\n".join(printable(line) for line in lines)
+
+
+def printable(text: str) -> str:
+    """``text`` with its control characters escaped (``\\x1b``): names, topics and metadata come from the file, and a
+    hostile one's terminal escapes once recoloured and could overwrite this command's output."""
+    return text if text.isprintable() else "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)

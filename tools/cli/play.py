@@ -181,6 +181,8 @@ def _replay(args: argparse.Namespace) -> int:
         notes.append(f"{left['not_selected']} on keys not replayed ({select.describe()} replayed)")
     if left.get("foreign_channel"):
         notes.append(f"{left['foreign_channel']} on Foxglove/foreign channels")
+    if result.tail_bytes:
+        notes.append(f"the last {result.tail_bytes} bytes, an incomplete record (a file cut short or being written)")
     if result.gaps_shortened:
         notes.append(f"{result.gaps_shortened} gaps in the log times paced as {args.max_gap:g} s (--max-gap)")
     print(

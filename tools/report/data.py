@@ -169,7 +169,8 @@ def find_scenario(
     up by name in the scenarios directory as ``fixstream play`` looks names up (a bare name only: a marker
     naming a path opens nothing)."""
     carried = carried or Carried()
-    notes: list[str] = []
+    # an attachment that could not be read (not YAML, not readable) is said, not only missed
+    notes: list[str] = [f"what the recording carries could not all be read: {p}" for p in carried.problems]
     starts = [m for _, m in rec.markers if m.event == "start"]
     name = starts[0].scenario if starts else carried.run_scenario
     seed = starts[0].seed if starts else carried.run_seed
@@ -200,9 +201,9 @@ def find_scenario(
         path = _by_name(name, _dir(scenarios_dir) or default_dir())
         return ScenarioChoice(load_scenario(path), str(path), name, seed, run_index, notes)
     except ScenarioError as exc:
+        attached_how = "no readable attachment of it (above)" if carried.problems else "not attached to the recording"
         notes.append(
-            f"scenario {name!r} of the start marker: not attached to the recording, not found by name ({exc}); "
-            "give it with --scenario"
+            f"scenario {name!r} of the start marker: {attached_how}, not found by name ({exc}); give it with --scenario"
         )
         return ScenarioChoice(None, None, name, seed, run_index, notes)
 
