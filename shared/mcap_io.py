@@ -602,13 +602,16 @@ def decode_rejected(record: Record) -> Rejected:
 
 @dataclass
 class TopicStats:
-    """One topic of a recording: its schema, how many messages, and their span on the data clock."""
+    """One topic of a recording: its schema (the first channel's), how many messages, and their span on the data
+    clock; ``schemas``: messages per schema name when the topic has channels of several (one key written with two
+    models), else empty."""
 
     schema_name: str
     message_encoding: str
     count: int = 0
     first_ns: int = 0
     last_ns: int = 0
+    schemas: Counter[str] = field(default_factory=Counter)
 
     @property
     def rate_hz(self) -> float:
@@ -663,6 +666,10 @@ def scan(path: str | os.PathLike[str]) -> Scan:
             if t is None:
                 t = topics[item.topic] = TopicStats(item.schema_name, item.message_encoding, 0, item.log_time_ns, 0)
             t.count += 1
+            if t.schemas or item.schema_name != t.schema_name:  # a second model on the key: count them apart
+                if not t.schemas:
+                    t.schemas[t.schema_name] = t.count - 1
+                t.schemas[item.schema_name] += 1
             t.first_ns = min(t.first_ns, item.log_time_ns)
             t.last_ns = max(t.last_ns, item.log_time_ns)
         elif type(item) is ChunkSeen:

@@ -293,3 +293,27 @@ def test_info_escapes_what_the_file_says_and_keeps_what_is_printable(tmp_path: P
     assert not any((ord(c) < 32 and c != "\n") or ord(c) == 127 for c in text)
     assert "\\x1b[31mred\\x1b[0m" in text and "\\x1b[2J" in text and "\\x07" in text
     assert "Привет, τ = 5 s" in text  # printable text from any script stays as it is
+
+
+def test_info_lists_every_model_a_key_was_written_with(tmp_path: Path) -> None:
+    """A key written with two models (a stray Heading among 3 Depth) once showed as 4 Depth, Heading nowhere."""
+    from shared.mcap_io import scan
+    from tools.cli.info import as_dict, describe
+
+    path = tmp_path / "two.mcap"
+    with path.open("wb") as f:
+        w = Writer(f)
+        w.start(profile="", library="test")
+        key = "fixstream/sensor/p/depth/d0"
+        channels = {}
+        for name in ("Depth", "Heading"):
+            schema = w.register_schema(name=f"fixstream.{name}", encoding="jsonschema", data=b"{}")
+            channels[name] = w.register_channel(topic=key, message_encoding="json", schema_id=schema)
+        for i, name in enumerate(["Depth", "Depth", "Heading", "Depth"]):
+            w.add_message(channels[name], log_time=i, data=EXAMPLES[name].model_dump_json().encode(), publish_time=i)
+        w.finish()
+    s = scan(path)
+    text = describe(s)
+    assert "3 fixstream.Depth, 1 fixstream.Heading (json)" in text, text
+    assert "Schemas (2): fixstream.Depth, fixstream.Heading" in text
+    assert as_dict(s)["topics"][key]["schemas"] == {"fixstream.Depth": 3, "fixstream.Heading": 1}

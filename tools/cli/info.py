@@ -94,6 +94,7 @@ def as_dict(s: Any) -> dict[str, Any]:
                 "count": v.count,
                 "rate_hz": v.rate_hz,
                 "schema": v.schema_name,
+                "schemas": dict(v.schemas) or {v.schema_name: v.count},
                 "message_encoding": v.message_encoding,
                 "first_ns": v.first_ns,
                 "last_ns": v.last_ns,
@@ -135,13 +136,14 @@ def describe(s: Any, all_metadata: bool = False) -> str:
     lines.append(f"Topics ({len(data)}):")
     lines.append(f"  {'key':<{width}}  {'count':>9}  {'rate Hz':>9}  schema")
     for t, v in sorted(data.items()):
-        lines.append(f"  {t:<{width}}  {v.count:>9}  {v.rate_hz:>9.2f}  {v.schema_name} ({v.message_encoding})")
+        models = ", ".join(f"{n} {name}" for name, n in v.schemas.items()) if v.schemas else v.schema_name
+        lines.append(f"  {t:<{width}}  {v.count:>9}  {v.rate_hz:>9.2f}  {models} ({v.message_encoding})")
     if rejected:
         total = sum(v.count for v in rejected.values())
         lines.append(f"Rejected payloads: {total} on {len(rejected)} keys (kept byte for byte, replayed as they came)")
         for t, v in sorted(rejected.items()):
             lines.append(f"  {t:<{width}}  {v.count:>9}")
-    schemas = sorted({v.schema_name for v in s.topics.values()})
+    schemas = sorted({name for v in s.topics.values() for name in (v.schemas or [v.schema_name])})
     lines.append(f"Schemas ({len(schemas)}): {', '.join(schemas)}")
     lines.append(f"Metadata ({len(s.metadata)}):")
     for m in s.metadata:
