@@ -126,3 +126,13 @@ def test_a_file_cut_short_replays_its_complete_chunks_and_says_what_it_left(
     part = replay_module.replay(session, cut, rate=0.0, select=lambda key: True)
     assert 0 < part.total < 200 and part.completed
     assert 0 < part.tail_bytes < len(data) * 2 // 3  # the incomplete record's bytes, not read
+
+
+def test_all_means_every_fixstream_key_and_keys_can_still_name_others() -> None:
+    """--all once replayed a hostile file's record on other/app/cmd too (docs: every fixstream key)."""
+    from services.player.selection import KeySelection
+
+    everything = KeySelection.from_options(everything=True)
+    assert everything("fixstream/fix/lbl/p1") and everything("fixstream/rejected/fixstream/sensor/p/depth/d0")
+    assert not everything("other/app/cmd") and not everything("@/admin/x") and not everything("/foxglove/scene/x")
+    assert KeySelection.from_options(["other/**"])("other/app/cmd")  # named: replayed

@@ -5,7 +5,7 @@ services answered (fixes, tracks, diagnostics, the coordinator's decisions). Rep
 inputs make the services compute their answers again; republishing the recorded answers as well would put two
 sets of fixes side by side on the same keys. So by default a replay republishes only :data:`PLAYER_KEYS`, the keys
 a player publishes (the same set the secure router lets the ``player`` identity write,
-``tools/stack/router-secure.json5``); ``--all`` replays every key, ``--keys`` names the key expressions to
+``tools/stack/router-secure.json5``); ``--all`` replays every fixstream key, ``--keys`` names the key expressions to
 replay instead, ``--exclude`` removes key expressions from either.
 
 A payload the recorder kept as rejected (channel ``fixstream/rejected/<key>``) is selected by its original key,
@@ -27,6 +27,8 @@ PLAYER_KEYS: tuple[str, ...] = (
     "fixstream/scenario/**",
     "fixstream/group/*/uplink/**",
 )
+#: what ``--all`` replays: every fixstream key
+ALL_KEYS: tuple[str, ...] = ("fixstream/**",)
 #: channel prefix of payloads the recorder kept as rejected (replayed on the key after it)
 REJECTED_PREFIX = "fixstream/rejected/"
 #: schema-name prefixes of the channels a replay publishes: the models, the recorder's rejected-payload envelope
@@ -54,9 +56,10 @@ class KeySelection:
     def from_options(
         cls, keys: Iterable[str] = (), exclude: Iterable[str] = (), everything: bool = False
     ) -> KeySelection:
-        """``--keys`` (replaces the default), ``--all`` (every key) and ``--exclude`` (removed from either)."""
+        """``--keys`` (replaces the default), ``--all`` (every fixstream key, ``fixstream/**``: a key outside it, which
+        a hostile file may hold, is replayed only when ``--keys`` names it) and ``--exclude`` (removed from either)."""
         named = tuple(keys)
-        include = named if named else (None if everything else PLAYER_KEYS)
+        include = named if named else (ALL_KEYS if everything else PLAYER_KEYS)
         return cls(include, tuple(exclude))
 
     def __call__(self, topic: str) -> bool:
