@@ -33,6 +33,7 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
+from samples import EXAMPLES
 from test_recorded_track import enu_independent
 
 from schemas import Message, ScenarioMarker, Truth
@@ -324,3 +325,26 @@ def test_lbl_hypotheses_and_group_fixes_become_entities(tmp_path: Path) -> None:
         assert [p.x, p.y, p.z] == pytest.approx([east, north, -f.depth_m])
         seen += 1
     assert seen == len(rd_fixes)
+
+
+def test_a_stamp_beyond_foxgloves_time_range_is_a_counted_refusal_with_its_reason() -> None:
+    """Header stamps are valid to 2**62 ns; a Foxglove Timestamp holds u32 seconds (to 2**32 s). Past that, the scene
+    of a message is not drawn and the loss is counted by its reason (it was an unexplained OverflowError)."""
+    from shared.foxglove.convert import FOXGLOVE_MAX_STAMP_NS
+
+    def truth(stamp_ns: int) -> Truth:
+        return EXAMPLES["Truth"].model_copy(
+            update={"header": EXAMPLES["Truth"].header.model_copy(update={"stamp_ns": stamp_ns})}
+        )
+
+    assert Converter().convert("fixstream/truth/p", truth(FOXGLOVE_MAX_STAMP_NS))  # the last representable stamp
+    with pytest.raises(ValueError, match="outside Foxglove's time range"):
+        Converter().convert("fixstream/truth/p", truth(FOXGLOVE_MAX_STAMP_NS + 1))
+
+    class NoWriter:
+        def write_raw(self, *args: Any, **kwargs: Any) -> None:
+            raise AssertionError("nothing is written for a message that cannot be converted")
+
+    channels = FoxgloveChannels()
+    channels.write(NoWriter(), "fixstream/truth/p", truth(2**62), 0)  # type: ignore[arg-type]
+    assert channels.errors == Counter({"Truth: ValueError": 1}) and channels.written == 0

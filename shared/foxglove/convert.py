@@ -137,9 +137,18 @@ class Converted:
         return str(type(self.message).get_schema().name)
 
 
+#: the last stamp a Foxglove ``Timestamp`` holds (its seconds are a u32: 2106-02-07 on the UNIX clock), below the
+#: schemas' 2**62 ns
+FOXGLOVE_MAX_STAMP_NS = 2**32 * 1_000_000_000 - 1
+
+
 def _timestamp(stamp_ns: int) -> Any:
+    """A Foxglove ``Timestamp``; ``ValueError`` naming the range for a stamp beyond it (a message is then not drawn,
+    and counted where it was converted; it was an ``OverflowError: number too large to fit in target type``)."""
     from foxglove.messages import Timestamp
 
+    if not 0 <= stamp_ns <= FOXGLOVE_MAX_STAMP_NS:
+        raise ValueError(f"stamp {stamp_ns} ns is outside Foxglove's time range (0 to 2^32 s)")
     return Timestamp(stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000)
 
 
