@@ -718,11 +718,14 @@ def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> Scan:
     with os.fdopen(fd, "wb") as out:
         w = Writer(out, compression=compression)
         w.start(profile=first.profile, library=first.library or "fixstream-recover")
-        schema_ids: dict[tuple[str, str], int] = {}
-        channel_ids: dict[tuple[str, str, str], int] = {}
+        # a schema is its name, encoding and data, a channel its topic, schema, encoding and metadata: two channels
+        # of one topic that differ only in their metadata (e.g. the schema version a publisher declared) stay two
+        # (merged, a replay of the recovered file published what the original's would skip as schema_version)
+        schema_ids: dict[tuple[str, str, bytes], int] = {}
+        channel_ids: dict[tuple[str, tuple[str, str, bytes], str, tuple[tuple[str, str], ...]], int] = {}
         for item in iter_items(src_p):
             if type(item) is Record:
-                skey = (item.schema_name, item.schema_encoding)
+                skey = (item.schema_name, item.schema_encoding, item.schema_data)
                 sid = schema_ids.get(skey)
                 if sid is None:
                     sid = (
@@ -731,7 +734,7 @@ def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> Scan:
                         else w.register_schema(item.schema_name, item.schema_encoding, item.schema_data)
                     )
                     schema_ids[skey] = sid
-                ckey = (item.topic, item.schema_name, item.message_encoding)
+                ckey = (item.topic, skey, item.message_encoding, tuple(sorted(item.channel_metadata.items())))
                 cid = channel_ids.get(ckey)
                 if cid is None:
                     cid = channel_ids[ckey] = w.register_channel(

@@ -317,3 +317,28 @@ def test_info_lists_every_model_a_key_was_written_with(tmp_path: Path) -> None:
     assert "3 fixstream.Depth, 1 fixstream.Heading (json)" in text, text
     assert "Schemas (2): fixstream.Depth, fixstream.Heading" in text
     assert as_dict(s)["topics"][key]["schemas"] == {"fixstream.Depth": 3, "fixstream.Heading": 1}
+
+
+def test_recover_keeps_channels_that_differ_only_in_metadata_or_schema_data(tmp_path: Path) -> None:
+    """recover() keyed channels by (topic, schema name, encoding): two channels of one key declaring Depth/1 and
+    Depth/99 became one Depth/1, and a replay of the recovered file published what the original's skips."""
+    src = tmp_path / "two.mcap"
+    key = "fixstream/sensor/p/depth/d0"
+    with src.open("wb") as f:
+        w = Writer(f)
+        w.start(profile="", library="test")
+        s1 = w.register_schema(name="fixstream.Depth", encoding="jsonschema", data=b"{}")
+        s2 = w.register_schema(name="fixstream.Depth", encoding="jsonschema", data=b'{"title": "other"}')
+        metas = [{"zenoh_encoding": "application/msgpack;fixstream.Depth/1"}, {"zenoh_encoding": "x/99"}, {}]
+        chans = [w.register_channel(key, "json", s, m) for s, m in ((s1, metas[0]), (s1, metas[1]), (s2, metas[2]))]
+        for i, ch in enumerate(chans * 2):
+            w.add_message(ch, log_time=i, data=EXAMPLES["Depth"].model_dump_json().encode(), publish_time=i)
+        w.finish()
+    out = tmp_path / "recovered.mcap"
+    recover(src, out)
+
+    def channels(path: Path) -> list[tuple[dict[str, str], bytes]]:
+        return [(dict(r.channel_metadata), r.schema_data) for r in iter_records(path)]
+
+    assert channels(out) == channels(src)
+    assert len({(tuple(m.items()), d) for m, d in channels(out)}) == 3
