@@ -136,3 +136,14 @@ def test_all_means_every_fixstream_key_and_keys_can_still_name_others() -> None:
     assert everything("fixstream/fix/lbl/p1") and everything("fixstream/rejected/fixstream/sensor/p/depth/d0")
     assert not everything("other/app/cmd") and not everything("@/admin/x") and not everything("/foxglove/scene/x")
     assert KeySelection.from_options(["other/**"])("other/app/cmd")  # named: replayed
+
+
+def test_a_record_on_a_wildcard_key_is_skipped_and_counted(
+    session: Any, pacers: list[FakePacer], tmp_path: Path
+) -> None:
+    """A recorder subscribed to fixstream/** records a put on fixstream/sensor/** as it came; replayed, that put
+    reached every sensor input of every service. No publisher of ours puts on a wildcard: skipped, counted."""
+    path = tmp_path / "rec.mcap"
+    write(path, [(DEPTH, depth(1), S), ("fixstream/sensor/**", depth(2), 2 * S), (DEPTH, depth(3), 3 * S)])
+    result = replay_module.replay(session, path, rate=0.0, select=lambda key: True)
+    assert result.published == {DEPTH: 2} and result.skipped == {"wildcard_key": 1}

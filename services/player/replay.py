@@ -10,8 +10,8 @@ on its channel's topic (the key expression it was recorded from),
 rebuilt as its pydantic model and re-encoded with :mod:`shared.codec`, so the bytes on the wire are those the
 original publisher sent (headers are kept as recorded: source, seq, stamps). A payload the recorder rejected
 (``fixstream/rejected/<key>``) goes back byte for byte on its original key with its original encoding. A record
-that cannot be rebuilt (unknown fixstream schema, invalid data) is skipped, logged and counted, never silently
-lost.
+that cannot be rebuilt (unknown fixstream schema, invalid data) or was recorded on a wildcard key expression (a put
+there reached every input it matched; ``wildcard_key``) is skipped, logged and counted, never silently lost.
 
 Left out on purpose, counted but not logged: records of keys the selection leaves out (by default everything but
 the player's keys, :mod:`services.player.selection`; a rejected payload is selected by its original key) and
@@ -145,6 +145,10 @@ def replay(
                     # marker has a subscription of its own: at --rate 0 it could overtake them, and a service then
                     # took them inside the run instead of dropping them as strays)
                     time.sleep(max(0.0, START_MARKER_GAP_S - (time.monotonic() - last_put)))
+            if "*" in key:  # a put on a key expression reaches every key it matches: no publisher of ours makes one
+                skipped["wildcard_key"] += 1
+                log.warning("skipping a record on %s: a wildcard key expression would reach every key it matches", key)
+                continue
             if last_log_time is not None and record.log_time_ns < last_log_time:
                 log.debug("log time goes backwards on %s (%d < %d ns)", record.topic, record.log_time_ns, last_log_time)
             if last_log_time is None:
