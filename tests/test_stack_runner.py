@@ -260,9 +260,11 @@ def test_dependency_that_never_becomes_ready_fails_the_run(tmp_path: Path) -> No
     assert result.returncodes["silent"] == 0 and result.returncodes["router"] == 0  # stopped cleanly
 
 
-def test_completed_dependency_and_sigterm_to_the_runner(tmp_path: Path) -> None:
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP], ids=lambda s: s.name)
+def test_completed_dependency_and_sigterm_to_the_runner(tmp_path: Path, sig: signal.Signals) -> None:
     """A one-shot init must finish first; SIGTERM to ``fixstream up`` stops everything in reverse order
-    and the exit code says so (not the interrupted driver's code)."""
+    and the exit code says so (not the interrupted driver's code). SIGHUP (the terminal closed, an ssh session
+    dropped) does the same: it once ended ``up`` alone and left the whole stack running, orphaned."""
     root = project_dir(
         tmp_path,
         """
@@ -289,16 +291,16 @@ def test_completed_dependency_and_sigterm_to_the_runner(tmp_path: Path) -> None:
     )
     try:
         assert wait_until(lambda: {"first", "second"} <= {e["name"] for e in events(root)}, timeout=20)
-        proc.send_signal(signal.SIGTERM)
+        proc.send_signal(sig)
         out, _ = proc.communicate(timeout=20)
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert proc.returncode == 128 + signal.SIGTERM, out
+    assert proc.returncode == 128 + sig, out
     evs = events(root)
     assert first(evs, "init", "exit")["t"] <= first(evs, "first", "start")["t"]
-    assert [e["name"] for e in evs if e["event"] == "sigterm"] == ["second", "first"]
-    assert "SIGTERM received, stopping the stack" in out
+    assert [e["name"] for e in evs if e["event"] == "sigterm"] == ["second", "first"]  # the services get SIGTERM
+    assert f"{sig.name} received, stopping the stack" in out
     assert "second exited with code 1" in out and "failed:" not in out
 
 

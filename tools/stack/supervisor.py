@@ -376,7 +376,9 @@ class Supervisor:
             self.request_stop(signum)
 
         previous: dict[int, Any] = {}
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        # SIGHUP too: a closed terminal or a dropped ssh session hangs up `up` alone (its services run in sessions of
+        # their own), which once left the whole stack running, orphaned, and its recording never finalised
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
             previous[sig] = signal.signal(sig, handler)
         return previous
 
