@@ -57,6 +57,18 @@ def owner(doc: Mapping[str, Any]) -> str:
     return f"{doc.get('service', '?')}/{doc.get('instance', '?')}"
 
 
+def alive_services(session: zenoh.Session, timeout_s: float) -> set[str]:
+    """The ``<service>/<instance>`` of every ``fixstream/alive/**`` liveliness token a query finds within
+    ``timeout_s`` (players' included; empty if the query fails)."""
+    alive: set[str] = set()
+    with contextlib.suppress(Exception):
+        for reply in session.liveliness().get(keys.ALIVE_ALL, timeout=timeout_s):
+            if reply.ok is not None:
+                with contextlib.suppress(ValueError):
+                    alive.add("/".join(keys.parse_alive(str(reply.ok.key_expr))))
+    return alive
+
+
 def collect_statuses(
     session: zenoh.Session,
     timeout_s: float,
@@ -72,11 +84,7 @@ def collect_statuses(
     for _ in range(attempts):
         if alive_now is not None:
             alive |= alive_now()
-        with contextlib.suppress(Exception):
-            for reply in session.liveliness().get(keys.ALIVE_ALL, timeout=timeout_s):
-                if reply.ok is not None:
-                    with contextlib.suppress(ValueError):
-                        alive.add("/".join(keys.parse_alive(str(reply.ok.key_expr))))
+        alive |= alive_services(session, timeout_s)
         with contextlib.suppress(Exception):
             for reply in query_all(session, keys.STATUS_ALL, timeout_s):
                 if reply.ok is not None:

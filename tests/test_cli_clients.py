@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 from pathlib import Path
 
@@ -61,6 +62,21 @@ def test_status_lists_every_live_service(router: str, tmp_path: Path) -> None:
         replies = [json.loads(line) for line in done.stdout.splitlines()]
         assert [(r["service"], r["instance"]) for r in replies] == [("recorder", "st")]
         assert replies[0]["config"]["out_dir"] == str(tmp_path)
+        # a live service that does not answer (stopped: SIGSTOP) is named on stderr; stdout stays JSON lines only
+        rec.send_signal(signal.SIGSTOP)
+        try:
+            done = subprocess.run(
+                fixstream_cmd("status", "--json", "--timeout", "1", "--connect", router),
+                cwd=REPO,
+                capture_output=True,
+                text=True,
+                timeout=30,
+            )
+        finally:
+            rec.send_signal(signal.SIGCONT)
+        assert done.returncode == 3, done.stderr  # no answer at all
+        assert all(json.loads(line) for line in done.stdout.splitlines() if not line.startswith("no service"))
+        assert "alive but no answer within 1 s: recorder/st" in done.stderr, done.stderr
     finally:
         rec.terminate()
         rec.wait(timeout=30)

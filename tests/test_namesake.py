@@ -92,3 +92,25 @@ def test_a_restart_after_a_crash_is_not_a_namesake(router: str) -> None:
         finally:
             again.terminate()
             assert again.wait(timeout=30) == 0
+
+
+def test_a_second_player_of_one_instance_is_refused_and_the_first_plays_on(router: str) -> None:
+    """An operator's churn audit: a second ``fixstream play`` of the same instance was accepted silently; both
+    published as ``player/default`` with two seq counters, and terrain_nav counted 71,144 of 4,808 messages lost."""
+    env = service_env(router)
+    play = [*fixstream_cmd("play", "lbl_nav_demo", "--rate", "1", "--no-wait", "--connect", router)]
+    first = subprocess.Popen(play, env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    client = open_session(ZenohSettings(mode="client", connect=[router]))
+    try:
+        alive = keys.alive("player", "default")
+        assert wait_until(lambda: any(r.ok for r in client.liveliness().get(alive, timeout=0.5)), 30.0)
+        second = subprocess.run(play, env=env, cwd=REPO, capture_output=True, text=True, timeout=60)
+        assert second.returncode == 2, second.stderr
+        assert "another process is already alive as fixstream/alive/player/default" in second.stderr
+        assert "Traceback" not in second.stderr and first.poll() is None  # the first plays on
+        other = [*play[:-2], "--instance", "other", "--rate", "0", "--connect", router]
+        assert subprocess.run(other, env=env, cwd=REPO, capture_output=True, timeout=60).returncode == 0
+    finally:
+        client.close()
+        first.terminate()
+        first.wait(timeout=30)

@@ -46,8 +46,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import json
+    import sys
 
+    import zenoh
+
+    from shared import keys
+    from shared.service import PLAYER_PREFIX
     from shared.session import open_session, query_all
+    from shared.status import alive_services, owner
 
     from . import exit_codes
     from .common import zenoh_settings_from
@@ -55,14 +61,30 @@ def run(args: argparse.Namespace) -> int:
     session = open_session(zenoh_settings_from(args))
     try:
         replies = query_all(session, args.selector, args.timeout)
+        alive = alive_services(session, args.timeout)
     finally:
         session.close()
     bodies: list[dict[str, Any]] = []
-    for reply in replies:
+    for reply in replies:  # an error reply on stderr: stdout stays what --json promises, one JSON object a line
         if reply.ok is None:
-            print(f"error: {reply.err.payload.to_string() if reply.err else 'unknown'}")
+            print(
+                f"fixstream status: an error reply: {reply.err.payload.to_string() if reply.err else 'unknown'}",
+                file=sys.stderr,
+            )
             continue
         bodies.append(json.loads(reply.ok.payload.to_bytes()))
+    # a service alive (its token) under the selector that did not answer (stopped, stalled) is named, not left out
+    selector = zenoh.KeyExpr(args.selector)
+    answered = {owner(b) for b in bodies}
+    silent = sorted(
+        who
+        for who in alive
+        if not who.startswith(PLAYER_PREFIX)  # a player has no status queryable
+        and who not in answered
+        and selector.intersects(zenoh.KeyExpr(keys.status(*who.split("/", 1))))
+    )
+    if silent:
+        print(f"fixstream status: alive but no answer within {args.timeout:g} s: {', '.join(silent)}", file=sys.stderr)
     bodies.sort(key=lambda b: (str(b.get("service")), str(b.get("instance"))))
     for body in bodies:
         if args.json:
