@@ -61,40 +61,45 @@ MIN_RATE = 1e-6
 MAX_RATE = 1e9
 
 
-def _number(text: str, kind: type[int] | type[float]) -> float:
+def _integer(text: str, lowest: int, highest: int) -> int:
+    """An integer ``lowest``..``highest`` of an option; else a usage error (exit code 2), not numpy's traceback or a
+    MemoryError later."""
     try:
-        return kind(text)
+        value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"not {'an integer' if kind is int else 'a number'}: {text!r}") from None
-
-
-def non_negative_int(text: str, maximum: int = MAX_COUNT) -> int:
-    """argparse ``type=``: an integer 0..``maximum`` (a seed, a run index, a count); else a usage error (exit code 2),
-    not numpy's traceback or a MemoryError later."""
-    value = int(_number(text, int))
-    if not 0 <= value <= maximum:
-        raise argparse.ArgumentTypeError(f"{value}: must be between 0 and {maximum:,}")
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if not lowest <= value <= highest:
+        raise argparse.ArgumentTypeError(f"{value}: must be between {lowest} and {highest:,}")
     return value
 
 
-def seed(text: str) -> int:
-    """argparse ``type=``: a seed, 0 .. 2**63 - 1 (what a scenario's ``seed`` takes)."""
-    return non_negative_int(text, 2**63 - 1)
+def _float(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+
+
+def non_negative_int(text: str) -> int:
+    """argparse ``type=``: an integer 0..``MAX_COUNT`` (a run index, a count)."""
+    return _integer(text, 0, MAX_COUNT)
 
 
 def positive_int(text: str) -> int:
     """argparse ``type=``: an integer 1..``MAX_COUNT`` (a count)."""
-    value = int(_number(text, int))
-    if not 1 <= value <= MAX_COUNT:
-        raise argparse.ArgumentTypeError(f"{value}: must be between 1 and {MAX_COUNT:,}")
-    return value
+    return _integer(text, 1, MAX_COUNT)
+
+
+def seed(text: str) -> int:
+    """argparse ``type=``: a seed, 0 .. 2**63 - 1 (what a scenario's ``seed`` takes)."""
+    return _integer(text, 0, 2**63 - 1)
 
 
 def seconds(text: str) -> float:
     """argparse ``type=``: a duration, a finite number of seconds 0..``MAX_SECONDS``; NaN, infinity and overflowing
     values are usage errors (``nan`` used to play as fast as possible, ``--duration nan`` never ended, and
     ``--timeout 1e20`` overflowed the OS's wait)."""
-    value = _number(text, float)
+    value = _float(text)
     if not 0.0 <= value <= MAX_SECONDS:  # NaN too
         raise argparse.ArgumentTypeError(f"{text}: must be a number of seconds from 0 to {MAX_SECONDS:g}")
     return value
@@ -110,7 +115,7 @@ def positive_seconds(text: str) -> float:
 
 def rate(text: str) -> float:
     """argparse ``type=``: a replay rate, times real time: 0 (as fast as possible) or ``MIN_RATE``..``MAX_RATE``."""
-    value = _number(text, float)
+    value = _float(text)
     if not (value == 0.0 or MIN_RATE <= value <= MAX_RATE):  # NaN too
         raise argparse.ArgumentTypeError(f"{text}: must be 0 (as fast as possible) or {MIN_RATE:g} to {MAX_RATE:g}")
     return value

@@ -56,9 +56,6 @@ def run(args: argparse.Namespace) -> int:
     from .listen import Listener
     from .rates import IntervalStats
 
-    if args.window < 1 or args.interval <= 0 or args.duration < 0 or args.count < 0:
-        print("fixstream hz: --window >= 1, --interval > 0, --duration >= 0 and --count >= 0", file=sys.stderr)
-        return exit_codes.USAGE
     stats: dict[str, IntervalStats] = {}
     unstamped = 0
     fresh: set[str] = set()
